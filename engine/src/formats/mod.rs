@@ -1,0 +1,1 @@
+//! Input decoders and output encoders.

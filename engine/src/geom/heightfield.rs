@@ -1,0 +1,85 @@
+//! A DEM as the pipelines see it: a row-major grid of heights with nodata as NaN, plus the
+//! georeferencing needed to write rasters that line up with the input.
+//!
+//! World frame used by every consumer (descriptor, renderer, glTF): X = east (column × `dx`),
+//! Y = up (elevation, metres), Z = south (row × `dy`); right-handed, the same as glTF's Y-up frame.
+//! Row 0 is the northern edge (north-up rasters).
+
+/// GeoTIFF tag values carried from input to output so that rasters we write line up with the
+/// input in any GIS. For inputs without GeoTIFF tags the decoders synthesise equivalent ones.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GeoTags {
+    /// ModelPixelScaleTag (33550).
+    pub pixel_scale: Option<Vec<f64>>,
+    /// ModelTiepointTag (33922).
+    pub tiepoint: Option<Vec<f64>>,
+    /// ModelTransformationTag (34264).
+    pub transformation: Option<Vec<f64>>,
+    /// GeoKeyDirectoryTag (34735).
+    pub geo_key_directory: Option<Vec<u16>>,
+    /// GeoDoubleParamsTag (34736).
+    pub geo_double_params: Option<Vec<f64>>,
+    /// GeoAsciiParamsTag (34737).
+    pub geo_ascii_params: Option<String>,
+}
+
+/// Where the grid lies on Earth.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GeoRef {
+    /// GDAL-style affine transform of cell *corners*: x = t[0] + col·t[1] + row·t[2],
+    /// y = t[3] + col·t[4] + row·t[5], in CRS units. `None` when the file has no georeferencing.
+    pub transform: Option<[f64; 6]>,
+    /// EPSG code of the CRS when known (4326, 32725, …).
+    pub epsg: Option<u32>,
+    /// True when CRS units are degrees (geographic CRS).
+    pub geographic: bool,
+    /// The nodata value as written in the file (e.g. -32768, NaN); heights hold NaN for it.
+    pub nodata: Option<f64>,
+    /// Raw GeoTIFF tags to copy to raster outputs.
+    pub tags: GeoTags,
+}
+
+/// A decoded DEM.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dem {
+    pub width: usize,
+    pub height: usize,
+    /// `width × height` heights in metres, row-major, row 0 north; NaN marks nodata.
+    pub heights: Vec<f32>,
+    /// Cell size in metres along X (east) and Z (south). For geographic CRSs converted at the
+    /// DEM's centre latitude.
+    pub dx: f64,
+    pub dy: f64,
+    pub georef: GeoRef,
+}
+
+impl Dem {
+    /// Height at (`col`, `row`); NaN for nodata. Panics on out-of-range indices (callers iterate
+    /// within bounds).
+    #[inline]
+    pub fn at(&self, col: usize, row: usize) -> f32 {
+        self.heights[row * self.width + col]
+    }
+
+    /// Number of cells that hold data.
+    pub fn valid_cells(&self) -> usize {
+        self.heights.iter().filter(|h| !h.is_nan()).count()
+    }
+
+    /// (min, max, mean) of valid heights, `None` when every cell is nodata.
+    pub fn stats(&self) -> Option<(f32, f32, f64)> {
+        let mut min = f32::INFINITY;
+        let mut max = f32::NEG_INFINITY;
+        let mut sum = 0.0f64;
+        let mut n = 0usize;
+        for &h in &self.heights {
+            if !h.is_nan() {
+                min = min.min(h);
+                max = max.max(h);
+                sum += f64::from(h);
+                n += 1;
+            }
+        }
+        (n > 0).then(|| (min, max, sum / n as f64))
+    }
+}

@@ -1,0 +1,18 @@
+//! `phenomena-engine`: formats, geometry, rendering and the pipelines of `phenomena`.
+//!
+//! Nothing here is async and nothing knows about HTTP. A pipeline is a plain function from a decoded
+//! input and validated parameters (plus a [`Control`] handle for progress and cancellation) to named
+//! [`Output`]s; the CLI and the server's workers call the same functions.
+
+pub mod control;
+pub mod error;
+pub mod formats;
+pub mod geom;
+pub mod output;
+pub mod pipeline;
+pub mod render;
+pub mod snow_terrain;
+
+pub use control::{Canceled, Control, NoControl};
+pub use error::{InputError, ParamError};
+pub use output::Output;

@@ -1,0 +1,1 @@
+//! Snow on terrain (SPEC §1).
