@@ -1,1 +1,7 @@
-//! Input decoders and output encoders.
+//! Input decoders and output encoders. Each reader refuses bad bytes with an [`crate::InputError`]
+//! before any large allocation.
+
+pub mod dem;
+pub mod geotiff_write;
+pub mod glb;
+pub mod png_write;

@@ -1,1 +1,1 @@
-//! Rendering shared by the pipelines.
+//! Rendering shared by the pipelines: cameras, images, the height-field ray caster.

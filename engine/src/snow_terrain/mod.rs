@@ -1,1 +1,3 @@
-//! Snow on terrain (SPEC §1).
+//! Snow on terrain (SPEC §1): Nakatani, Fujishiro and Ohno's surface descriptor.
+
+pub mod descriptor;

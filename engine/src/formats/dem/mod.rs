@@ -1,0 +1,1 @@
+//! DEM readers (in progress)
