@@ -1,1 +1,25 @@
-//! Rendering shared by the pipelines: cameras, images, the height-field ray caster.
+//! Rendering shared by the pipelines: cameras, images, the height-field ray caster and contact
+//! sheets.
+//!
+//! - [`image`]: 8-bit sRGB images with straight alpha and the linear ↔ sRGB conversions.
+//! - [`camera`]: a perspective pin-hole camera (explicit eye/target or an orbit around a centre)
+//!   and per-pixel ray generation.
+//! - [`terrain`]: a ray caster over a maximum-height mip pyramid that draws big DEMs at full detail
+//!   with Lambert shading, cast shadows, aerial perspective (SPEC §1 step 8) and a sky background.
+//! - [`sheet`]: labelled contact sheets of tiles (the paper's Figs. 11–12).
+//!
+//! World frame (shared with `geom::heightfield` and the glTF writer): X = east, Y = up, Z = south,
+//! right-handed; the grid is centred on the origin horizontally.
+
+pub mod camera;
+pub mod image;
+pub mod sheet;
+pub mod terrain;
+
+pub use camera::{Camera, RayGen};
+pub use image::RgbaImage;
+pub use sheet::contact_sheet;
+
+pub use terrain::{
+    render_terrain, render_with, sun_direction, Hit, Lighting, TerrainAccel, TerrainScene,
+};
