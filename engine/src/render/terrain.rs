@@ -168,6 +168,8 @@ pub struct TerrainAccel<'a> {
     half_z: f64,
     /// Smallest cell size, for epsilons.
     cell: f64,
+    /// Slack on height comparisons (rounding of `o + t·d`), world units.
+    eps_y: f64,
 }
 
 impl<'a> TerrainAccel<'a> {
@@ -234,6 +236,7 @@ impl<'a> TerrainAccel<'a> {
             half_x: cw as f64 * scene.dx * 0.5,
             half_z: ch as f64 * scene.dy * 0.5,
             cell: scene.dx.min(scene.dy),
+            eps_y: 1e-9 * (hmin.abs().max(hmax.abs()) + scene.dx.max(scene.dy)),
         }
     }
 
@@ -268,7 +271,7 @@ impl<'a> TerrainAccel<'a> {
                 let lv = &self.levels[level - 1];
                 let m = f64::from(lv.max[cj * lv.w + ci]);
                 let ylo = (r.oy + r.dy * t).min(r.oy + r.dy * tend);
-                if ylo <= m {
+                if ylo <= m + self.eps_y {
                     // Descend into the child holding the ray at `t`.
                     level -= 1;
                     let (cw, ch) = self.dims(level);
@@ -481,7 +484,7 @@ impl<'a> TerrainAccel<'a> {
         for (o, d, inv, lo, hi) in [
             (r.ou, r.du, r.inv_du, 0.0, self.cw as f64),
             (r.ov, r.dv, r.inv_dv, 0.0, self.ch as f64),
-            (r.oy, r.dy, 1.0 / r.dy, self.hmin, self.hmax),
+            (r.oy, r.dy, 1.0 / r.dy, self.hmin - self.eps_y, self.hmax + self.eps_y),
         ] {
             if d == 0.0 {
                 if o < lo || o > hi {

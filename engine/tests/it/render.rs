@@ -1,1 +1,491 @@
-//! render tests
+//! Renderer tests: camera geometry, the ray caster against analytic surfaces and a brute-force
+//! reference, shading, alpha for holes, determinism, the contact sheet, PNG and GLB writers.
+
+use phenomena_engine::formats::{glb, png_write};
+use phenomena_engine::render::{
+    contact_sheet, render_terrain, sun_direction, Camera, Lighting, RgbaImage, TerrainAccel,
+    TerrainScene,
+};
+use phenomena_engine::NoControl;
+
+/// Tiny ESRI ASCII grid reader for test data (nodata → NaN).
+pub(crate) fn load_asc(path: &str) -> (usize, usize, f64, Vec<f32>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let (mut w, mut h, mut cell, mut nodata) = (0usize, 0usize, 1.0f64, f32::NAN);
+    let mut values = Vec::new();
+    for line in lines.by_ref() {
+        let mut it = line.split_whitespace();
+        let key = it.next().unwrap_or("").to_ascii_lowercase();
+        let val = it.next().unwrap_or("");
+        match key.as_str() {
+            "ncols" => w = val.parse().unwrap(),
+            "nrows" => h = val.parse().unwrap(),
+            "cellsize" => cell = val.parse().unwrap(),
+            "nodata_value" => nodata = val.parse().unwrap(),
+            "xllcorner" | "yllcorner" | "xllcenter" | "yllcenter" => {}
+            _ => {
+                values.extend(line.split_whitespace().map(|v| v.parse::<f32>().unwrap()));
+                break;
+            }
+        }
+    }
+    for line in lines {
+        values.extend(line.split_whitespace().map(|v| v.parse::<f32>().unwrap()));
+    }
+    assert_eq!(values.len(), w * h);
+    for v in &mut values {
+        if *v == nodata {
+            *v = f32::NAN;
+        }
+    }
+    (w, h, cell, values)
+}
+
+/// Deterministic pseudo-random numbers in [0, 1).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+fn flat_lighting() -> Lighting {
+    Lighting {
+        haze: 0.0,
+        samples: 1,
+        shadows: false,
+        ..Lighting::default()
+    }
+}
+
+#[test]
+fn orbit_azimuth_180_is_south_of_centre() {
+    let c = [5.0, 100.0, -7.0];
+    let cam = Camera::orbit(c, 180.0, 25.0, 1000.0, 40.0);
+    assert!(cam.eye[2] > c[2]);
+    assert!(cam.eye[0].abs() - c[0].abs() < 1e-6);
+    assert!(cam.eye[1] > c[1]);
+    let d =
+        ((cam.eye[0] - c[0]).powi(2) + (cam.eye[1] - c[1]).powi(2) + (cam.eye[2] - c[2]).powi(2))
+            .sqrt();
+    assert!((d - 1000.0).abs() < 1e-6);
+    // A sphere of radius r at auto distance fits: r / d = sin(fov/2) / 1.05.
+    let dist = Camera::auto_distance(100.0, 40.0);
+    assert!((100.0 / dist - 20f64.to_radians().sin() / 1.05).abs() < 1e-12);
+}
+
+#[test]
+fn flat_plane_lit_from_above_is_uniform_lambert() {
+    let (w, h) = (33, 21);
+    let heights = vec![50.0f32; w * h];
+    let albedo_c = [0.5f32, 0.4, 0.3];
+    let albedo = vec![albedo_c; w * h];
+    let scene = TerrainScene {
+        width: w,
+        height: h,
+        dx: 10.0,
+        dy: 10.0,
+        heights: &heights,
+        albedo: &albedo,
+    };
+    let light = Lighting {
+        sun_dir: [0.0, 1.0, 0.0],
+        sun_color: [0.6, 0.6, 0.6],
+        ambient: 0.3,
+        shadows: true,
+        ..flat_lighting()
+    };
+    // Straight down at the middle: the whole image sees the plane.
+    let cam = Camera {
+        eye: [0.0, 200.0, 0.0],
+        target: [0.0, 50.0, 0.0],
+        up: [0.0, 0.0, -1.0],
+        fov_deg: 30.0,
+    };
+    let img = render_terrain(&scene, &cam, &light, 64, 48, &NoControl, (0.0, 1.0)).unwrap();
+    for y in 0..48 {
+        for x in 0..64 {
+            let p = img.pixel(x, y);
+            assert_eq!(p[3], 255);
+            for c in 0..3 {
+                let want =
+                    phenomena_engine::render::image::linear_to_srgb(albedo_c[c] * 0.9) * 255.0;
+                assert!(
+                    (f32::from(p[c]) - want).abs() <= 1.0,
+                    "({x},{y}) ch {c}: {} vs {want}",
+                    p[c]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn intersection_matches_analytic_planes() {
+    // Plane y = a·x + b·z + c sampled on a grid: the triangles reproduce it exactly.
+    let (w, h, dx, dy) = (40, 30, 7.0, 5.0);
+    let albedo = vec![[0.5f32; 3]; w * h];
+    let mut rng = Lcg(7);
+    for (a, b, c) in [(0.0, 0.0, 12.0), (0.3, -0.2, 40.0), (-0.7, 0.45, 100.0)] {
+        let hx = (w - 1) as f64 * dx / 2.0;
+        let hz = (h - 1) as f64 * dy / 2.0;
+        let heights: Vec<f32> = (0..w * h)
+            .map(|k| {
+                let (col, row) = ((k % w) as f64, (k / w) as f64);
+                (a * (col * dx - hx) + b * (row * dy - hz) + c) as f32
+            })
+            .collect();
+        let scene = TerrainScene {
+            width: w,
+            height: h,
+            dx,
+            dy,
+            heights: &heights,
+            albedo: &albedo,
+        };
+        let acc = TerrainAccel::new(&scene);
+        for _ in 0..200 {
+            // Aim at a random point of the plane from a random eye above it.
+            let (px, pz) = ((rng.next() - 0.5) * 1.8 * hx, (rng.next() - 0.5) * 1.8 * hz);
+            let py = a * px + b * pz + c;
+            let eye = [
+                (rng.next() - 0.5) * 600.0,
+                250.0 + rng.next() * 100.0,
+                (rng.next() - 0.5) * 600.0,
+            ];
+            let v = [px - eye[0], py - eye[1], pz - eye[2]];
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let d = [v[0] / len, v[1] / len, v[2] / len];
+            // Analytic ray/plane distance: n·(o + t d) = c with n = (-a, 1, -b).
+            let t_plane = (c - (eye[1] - a * eye[0] - b * eye[2])) / (d[1] - a * d[0] - b * d[2]);
+            assert!((t_plane - len).abs() < 1e-6 * len);
+            let hit = acc
+                .intersect(eye, d, 0.0, f64::INFINITY)
+                .expect("ray aimed at the plane hits");
+            assert!(
+                (hit.t - t_plane).abs() < 1e-6 * len,
+                "t {} vs {}",
+                hit.t,
+                t_plane
+            );
+            let p = acc.hit_position(&hit);
+            assert!((p[0] - px).abs() < 1e-6 * len && (p[2] - pz).abs() < 1e-6 * len);
+            let n = acc.hit_normal(&hit);
+            let nl = (a * a + 1.0 + b * b).sqrt();
+            assert!(
+                (n[0] + a / nl).abs() < 1e-5
+                    && (n[1] - 1.0 / nl).abs() < 1e-5
+                    && (n[2] + b / nl).abs() < 1e-5
+            );
+        }
+    }
+}
+
+fn random_terrain(w: usize, h: usize, seed: u64, holes: bool) -> Vec<f32> {
+    let mut rng = Lcg(seed);
+    let phase: Vec<f64> = (0..6).map(|_| rng.next() * 6.28).collect();
+    (0..w * h)
+        .map(|k| {
+            let (x, z) = ((k % w) as f64, (k / w) as f64);
+            let v = 20.0 * (x * 0.21 + phase[0]).sin() * (z * 0.17 + phase[1]).cos()
+                + 8.0 * (x * 0.7 + z * 0.5 + phase[2]).sin()
+                + 15.0 * rng.next();
+            if holes && rng.next() < 0.05 {
+                f32::NAN
+            } else {
+                v as f32
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn pyramid_caster_equals_brute_force() {
+    for (w, h, seed, holes) in [
+        (37, 23, 1, false),
+        (64, 64, 2, true),
+        (5, 70, 3, false),
+        (2, 2, 4, false),
+        (129, 17, 5, true),
+    ] {
+        let heights = random_terrain(w, h, seed, holes);
+        let albedo = vec![[0.5f32; 3]; w * h];
+        let scene = TerrainScene {
+            width: w,
+            height: h,
+            dx: 3.0,
+            dy: 4.0,
+            heights: &heights,
+            albedo: &albedo,
+        };
+        let acc = TerrainAccel::new(&scene);
+        let mut rng = Lcg(seed * 77);
+        let (mut hits, mut total) = (0, 0);
+        for _ in 0..3000 {
+            let eye = [
+                (rng.next() - 0.5) * 500.0,
+                rng.next() * 120.0 - 10.0,
+                (rng.next() - 0.5) * 500.0,
+            ];
+            let tgt = [
+                (rng.next() - 0.5) * w as f64 * 3.0,
+                rng.next() * 40.0 - 10.0,
+                (rng.next() - 0.5) * h as f64 * 4.0,
+            ];
+            let v = [tgt[0] - eye[0], tgt[1] - eye[1], tgt[2] - eye[2]];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let d = [v[0] / l, v[1] / l, v[2] / l];
+            let fast = acc.intersect(eye, d, 0.0, f64::INFINITY);
+            let slow = acc.intersect_brute(eye, d, 0.0, f64::INFINITY);
+            total += 1;
+            match (fast, slow) {
+                (Some(a), Some(b)) => {
+                    hits += 1;
+                    assert!(
+                        (a.t - b.t).abs() < 1e-6 * b.t.max(1.0),
+                        "{w}x{h}: {} vs {}",
+                        a.t,
+                        b.t
+                    );
+                }
+                (None, None) => {}
+                (a, b) => panic!("{w}x{h}: pyramid {a:?} vs brute {b:?} for eye {eye:?} dir {d:?}"),
+            }
+        }
+        assert!(
+            hits > total / 10 || (w * h < 10 && hits > 0),
+            "{w}x{h}: too few hits ({hits}) to mean anything"
+        );
+    }
+}
+
+#[test]
+fn holes_are_transparent_and_the_sky_is_opaque() {
+    let (w, h) = (40, 40);
+    let mut heights = vec![10.0f32; w * h];
+    for r in 15..25 {
+        for c in 15..25 {
+            heights[r * w + c] = f32::NAN;
+        }
+    }
+    let albedo = vec![[0.5f32; 3]; w * h];
+    let scene = TerrainScene {
+        width: w,
+        height: h,
+        dx: 1.0,
+        dy: 1.0,
+        heights: &heights,
+        albedo: &albedo,
+    };
+    // Straight down on the hole: the centre is transparent, the rim opaque.
+    let cam = Camera {
+        eye: [0.0, 60.0, 0.0],
+        target: [0.0, 10.0, 0.0],
+        up: [0.0, 0.0, -1.0],
+        fov_deg: 50.0,
+    };
+    let img = render_terrain(
+        &scene,
+        &cam,
+        &flat_lighting(),
+        40,
+        40,
+        &NoControl,
+        (0.0, 1.0),
+    )
+    .unwrap();
+    assert_eq!(img.pixel(20, 20)[3], 0);
+    assert_eq!(img.pixel(1, 1)[3], 255);
+    // Looking at the horizon: sky above is opaque.
+    let cam = Camera::orbit([0.0, 10.0, 0.0], 180.0, 5.0, 80.0, 40.0);
+    let img = render_terrain(
+        &scene,
+        &cam,
+        &flat_lighting(),
+        40,
+        40,
+        &NoControl,
+        (0.0, 1.0),
+    )
+    .unwrap();
+    assert_eq!(img.pixel(20, 0)[3], 255);
+    let top = img.pixel(20, 0);
+    assert!(top[2] > top[0], "sky is blue: {top:?}");
+}
+
+fn volcano_scene_data() -> (usize, usize, f64, Vec<f32>, Vec<[f32; 3]>) {
+    let (w, h, cell, heights) = load_asc("/work/shared/data/dem/maunga_whau_volcano.asc");
+    let heights: Vec<f32> = heights.iter().map(|v| v * 1.5).collect();
+    let (lo, hi) = heights
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+    let albedo = heights
+        .iter()
+        .map(|&v| height_colour((v - lo) / (hi - lo)))
+        .collect();
+    (w, h, cell, heights, albedo)
+}
+
+/// Green lowland → brown → grey rock → snow, linear RGB.
+fn height_colour(t: f32) -> [f32; 3] {
+    let stops = [
+        (0.0, [0.10, 0.22, 0.06]),
+        (0.45, [0.22, 0.28, 0.10]),
+        (0.7, [0.30, 0.24, 0.16]),
+        (0.88, [0.40, 0.38, 0.36]),
+        (1.0, [0.85, 0.86, 0.88]),
+    ];
+    for win in stops.windows(2) {
+        let ((a, ca), (b, cb)) = (win[0], win[1]);
+        if t <= b {
+            let s = ((t - a) / (b - a)).clamp(0.0, 1.0);
+            return [
+                ca[0] + (cb[0] - ca[0]) * s,
+                ca[1] + (cb[1] - ca[1]) * s,
+                ca[2] + (cb[2] - ca[2]) * s,
+            ];
+        }
+    }
+    stops[4].1
+}
+
+#[test]
+fn volcano_render_is_deterministic_across_thread_counts() {
+    let (w, h, cell, heights, albedo) = volcano_scene_data();
+    let scene = TerrainScene {
+        width: w,
+        height: h,
+        dx: cell,
+        dy: cell,
+        heights: &heights,
+        albedo: &albedo,
+    };
+    let (c, r) = scene.bounding_sphere();
+    let cam = Camera::orbit(c, 200.0, 28.0, Camera::auto_distance(r, 35.0) * 0.8, 35.0);
+    let light = Lighting {
+        sun_dir: sun_direction(250.0, 35.0),
+        ..Lighting::default()
+    };
+    let render = || render_terrain(&scene, &cam, &light, 900, 600, &NoControl, (0.0, 1.0)).unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(render);
+    let many = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap()
+        .install(render);
+    assert!(one == many, "1-thread and 4-thread renders differ");
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+    std::fs::write(dir.join("volcano.png"), png_write::encode_rgba(&one)).unwrap();
+    // Sky at the top, terrain in the middle.
+    let top = one.pixel(450, 2);
+    assert!(top[2] > top[0] && top[3] == 255);
+    let mid = one.pixel(450, 400);
+    assert!(mid != top);
+}
+
+#[test]
+fn contact_sheet_dimensions_and_labels() {
+    let tiles: Vec<(RgbaImage, String)> = (0..5)
+        .map(|k| {
+            (
+                RgbaImage::new_filled(100 + k * 10, 60, [200, 30, 30, 255]),
+                format!("b = {k}"),
+            )
+        })
+        .collect();
+    let sheet = contact_sheet(&tiles, 3);
+    // 3 columns of the widest tile (140), 2 rows of 60 + 28 caption, 12 px gaps.
+    assert_eq!(
+        (sheet.width, sheet.height),
+        (3 * (140 + 12) + 12, 2 * (60 + 28 + 12) + 12)
+    );
+    // Some caption ink under the first tile.
+    let dark = (12..152)
+        .flat_map(|x| (72..100).map(move |y| (x, y)))
+        .filter(|&(x, y)| sheet.pixel(x, y)[0] < 0x40)
+        .count();
+    assert!(dark > 20, "caption drawn ({dark} dark pixels)");
+    assert!(sheet.data.chunks(4).all(|p| p[3] == 255));
+}
+
+#[test]
+fn glb_structure_and_vertex_budget() {
+    let (w, h) = (101, 67);
+    let heights = random_terrain(w, h, 9, true);
+    let colors = vec![[0.2f32, 0.5, 0.9]; w * h];
+    for budget in [usize::MAX, 2000, 100, 4] {
+        let bytes = glb::terrain_glb(&heights, w, h, 10.0, 20.0, &colors, budget);
+        let doc = check_glb(&bytes);
+        let acc = &doc["accessors"];
+        let pos = &acc[doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+            .as_u64()
+            .unwrap() as usize];
+        let count = pos["count"].as_u64().unwrap() as usize;
+        assert!(
+            count <= budget.max(4),
+            "{count} vertices over budget {budget}"
+        );
+        assert!(count > 0);
+        let min = pos["min"].as_array().unwrap();
+        let max = pos["max"].as_array().unwrap();
+        // Centred like the renderer.
+        assert!(
+            min[0].as_f64().unwrap() >= -500.0 - 1e-3 && max[0].as_f64().unwrap() <= 500.0 + 1e-3
+        );
+        assert!(
+            min[2].as_f64().unwrap() >= -660.0 - 1e-3 && max[2].as_f64().unwrap() <= 660.0 + 1e-3
+        );
+        if budget == usize::MAX {
+            // Full resolution: every valid point is kept and no triangle touches a hole.
+            let valid = heights.iter().filter(|v| !v.is_nan()).count();
+            assert!(count <= valid);
+            assert!(min[0].as_f64().unwrap() < -499.0 && max[0].as_f64().unwrap() > 499.0);
+        }
+    }
+}
+
+/// Parse a GLB, check header, chunk and bufferView alignment and sizes, and return its JSON.
+pub(crate) fn check_glb(bytes: &[u8]) -> serde_json::Value {
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()) as usize;
+    assert_eq!(&bytes[0..4], b"glTF");
+    assert_eq!(u32_at(4), 2);
+    assert_eq!(u32_at(8), bytes.len());
+    let json_len = u32_at(12);
+    assert_eq!(&bytes[16..20], b"JSON");
+    assert_eq!(json_len % 4, 0);
+    let json = &bytes[20..20 + json_len];
+    let doc: serde_json::Value = serde_json::from_slice(json).unwrap();
+    let bin_at = 20 + json_len;
+    let bin_len = u32_at(bin_at);
+    assert_eq!(&bytes[bin_at + 4..bin_at + 8], b"BIN\0");
+    assert_eq!(bin_len % 4, 0);
+    assert_eq!(bin_at + 8 + bin_len, bytes.len());
+    assert_eq!(doc["asset"]["version"], "2.0");
+    let buf_len = doc["buffers"][0]["byteLength"].as_u64().unwrap() as usize;
+    assert!(buf_len <= bin_len && bin_len - buf_len < 4);
+    for v in doc["bufferViews"].as_array().unwrap() {
+        let off = v["byteOffset"].as_u64().unwrap_or(0) as usize;
+        assert_eq!(off % 4, 0);
+        assert!(off + v["byteLength"].as_u64().unwrap() as usize <= buf_len);
+    }
+    let prim = &doc["meshes"][0]["primitives"][0];
+    let count = |k: &serde_json::Value| {
+        doc["accessors"][k.as_u64().unwrap() as usize]["count"]
+            .as_u64()
+            .unwrap()
+    };
+    let n = count(&prim["attributes"]["POSITION"]);
+    assert_eq!(count(&prim["attributes"]["NORMAL"]), n);
+    assert_eq!(count(&prim["attributes"]["COLOR_0"]), n);
+    assert_eq!(count(&prim["indices"]) % 3, 0);
+    doc
+}
