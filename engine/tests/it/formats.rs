@@ -125,3 +125,457 @@ fn olinda_projected_utm() {
         "{t:?}"
     );
 }
+
+// ---------- real ESRI ASCII grids ----------
+
+#[test]
+fn tanzawa_asc_matches_geotiff() {
+    let asc = read(dem_path!("tanzawa_sagami_aster_gdem2_f32.asc"));
+    let tif = read(dem_path!("tanzawa_sagami_aster_gdem2.tif"));
+    check_stats(&asc, 884, 868, 0.0, 1668.0, 244.542);
+    assert_eq!(asc.heights, tif.heights);
+    // The geographic heuristic: cellsize < 1 and the extent within lon/lat range.
+    assert!(asc.georef.geographic);
+    assert_eq!(asc.georef.epsg, Some(4326));
+    assert!(close(asc.dx, tif.dx, 1e-3) && close(asc.dy, tif.dy, 1e-3));
+    let (a, b) = (asc.georef.transform.unwrap(), tif.georef.transform.unwrap());
+    for i in 0..6 {
+        assert!(close(a[i], b[i], 1e-7), "{a:?} vs {b:?}");
+    }
+}
+
+#[test]
+fn colorado_asc_unused_nodata() {
+    let dem = read(dem_path!("colorado_front_range_srtmgl3.asc"));
+    check_stats(&dem, 758, 758, 1547.0, 4320.0, 2639.999);
+    assert_eq!(dem.valid_cells(), 758 * 758);
+    assert_eq!(dem.georef.nodata, Some(0.0));
+    assert_eq!(dem.georef.epsg, Some(4326));
+    let tif = read(dem_path!("colorado_front_range_srtmgl3_f32.tif"));
+    assert_eq!(dem.heights, tif.heights);
+    // 3″ at ≈ 40.15°N: ≈ 71 m east, ≈ 92.5 m north.
+    let (m_lat, m_lon) = metres_per_degree(40.150417);
+    assert!(close(dem.dx, m_lon / 1200.0, 0.01) && close(dem.dy, m_lat / 1200.0, 0.01));
+    assert!(
+        close(dem.dx, 71.0, 0.5) && close(dem.dy, 92.5, 0.5),
+        "{} {}",
+        dem.dx,
+        dem.dy
+    );
+}
+
+#[test]
+fn jacksboro_asc() {
+    let dem = read(dem_path!("jacksboro_fault_dem_f32.asc"));
+    check_stats(&dem, 403, 344, 236.0, 1076.0, 531.031);
+    assert_eq!(dem.georef.epsg, Some(4326));
+}
+
+#[test]
+fn volcano_asc_is_projected_10m() {
+    let dem = read(dem_path!("maunga_whau_volcano.asc"));
+    check_stats(&dem, 87, 61, 94.0, 195.0, 130.188);
+    assert!(!dem.georef.geographic);
+    assert_eq!(dem.georef.epsg, None);
+    assert_eq!((dem.dx, dem.dy), (10.0, 10.0));
+    assert_eq!(
+        dem.georef.transform,
+        Some([0.0, 10.0, 0.0, 610.0, 0.0, -10.0])
+    );
+    // Synthesised tags so the writer can georeference ASC outputs.
+    assert_eq!(dem.georef.tags.pixel_scale, Some(vec![10.0, 10.0, 0.0]));
+    assert_eq!(
+        dem.georef.tags.tiepoint,
+        Some(vec![0.0, 0.0, 0.0, 0.0, 610.0, 0.0])
+    );
+    assert!(dem.georef.tags.geo_key_directory.is_some());
+}
+
+fn asc_err(text: &str) -> InputError {
+    decode_dem(text.as_bytes(), Some("x.asc"), &opts()).unwrap_err()
+}
+
+#[test]
+fn asc_header_variants() {
+    let text = "NCOLS 3\nNrows 3\nXLLCENTER 105\nyllcenter 5\nDX 2\nDY 4\nnodata_value -9999\n\
+                1 2 3\n4 -9999 6\n7 8 9\n";
+    let dem = decode_dem(text.as_bytes(), None, &opts()).unwrap();
+    assert_eq!(dem.valid_cells(), 8);
+    assert!(dem.at(1, 1).is_nan());
+    assert_eq!(dem.at(2, 2), 9.0);
+    assert_eq!(
+        dem.georef.transform,
+        Some([104.0, 2.0, 0.0, 15.0, 0.0, -4.0])
+    );
+    assert_eq!((dem.dx, dem.dy), (2.0, 4.0));
+    assert!(!dem.georef.geographic);
+    // cell_size overrides the header (metres).
+    let o = DemOptions {
+        cell_size: Some(30.0),
+        ..opts()
+    };
+    let dem = decode_dem(text.as_bytes(), Some("a.asc"), &o).unwrap();
+    assert_eq!((dem.dx, dem.dy), (30.0, 30.0));
+}
+
+#[test]
+fn asc_refuses_bad_bodies() {
+    let head = "ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+    for body in [
+        "1 2 3 4 5 6 7 8",
+        "1 2 3 4 5 6 7 8 9 10",
+        "1 2 3 4 x 6 7 8 9",
+    ] {
+        let e = asc_err(&format!("{head}{body}\n"));
+        assert!(matches!(e, InputError::Corrupt { .. }), "{body}: {e:?}");
+    }
+    assert!(matches!(
+        asc_err("ncols 3\nnrows 3\n1 2 3"),
+        InputError::Corrupt { .. }
+    ));
+    // Absurd sizes: over the limit → TooLarge; under it but no data → Corrupt (no allocation).
+    let e =
+        asc_err("ncols 1000000000\nnrows 1000000000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n");
+    assert!(matches!(e, InputError::TooLarge { .. }), "{e:?}");
+    let e = asc_err("ncols 8000\nnrows 8000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2\n");
+    assert!(matches!(e, InputError::Corrupt { .. }), "{e:?}");
+    let e = asc_err("ncols -3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n");
+    assert!(matches!(e, InputError::Corrupt { .. }), "{e:?}");
+}
+
+#[test]
+fn tiny_and_empty_grids_are_unusable() {
+    let e = asc_err("ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3 4\n");
+    assert!(matches!(e, InputError::Unusable(_)), "{e:?}");
+    let e = asc_err(
+        "ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\nNODATA_value 5\n5 5 5 5 5 5 5 5 5\n",
+    );
+    assert!(matches!(e, InputError::Unusable(_)), "{e:?}");
+}
+
+// ---------- GeoTIFF variants written here ----------
+
+/// GeoTIFF tags for a north-up EPSG:4326 grid at (lon, lat) with 1/1200° cells.
+fn write_geo_tags<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
+    dir: &mut tiff::encoder::DirectoryEncoder<W, K>,
+    nodata: Option<&str>,
+) {
+    use tiff::tags::Tag;
+    let res = 1.0 / 1200.0;
+    dir.write_tag(Tag::ModelPixelScaleTag, &[res, res, 0.0][..])
+        .unwrap();
+    dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 10.0, 47.0, 0.0][..])
+        .unwrap();
+    dir.write_tag(
+        Tag::GeoKeyDirectoryTag,
+        &[
+            1u16, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326,
+        ][..],
+    )
+    .unwrap();
+    if let Some(n) = nodata {
+        dir.write_tag(Tag::GdalNodata, n).unwrap();
+    }
+}
+
+fn grid_values(w: usize, h: usize) -> Vec<f64> {
+    (0..w * h)
+        .map(|i| ((i % w) * 3 + (i / w) * 7) as f64 + 100.0)
+        .collect()
+}
+
+macro_rules! typed_tiff {
+    ($color:ty, $t:ty, $w:expr, $h:expr, $nodata:expr, $comp:expr) => {{
+        let (w, h) = ($w, $h);
+        let mut data: Vec<$t> = grid_values(w, h).iter().map(|&v| v as $t).collect();
+        if let Some(nd) = $nodata {
+            data[0] = nd;
+        }
+        let mut cur = std::io::Cursor::new(Vec::new());
+        let mut enc = tiff::encoder::TiffEncoder::new(&mut cur).unwrap();
+        let mut img = enc
+            .new_image_with_compression::<$color, _>(w as u32, h as u32, $comp)
+            .unwrap();
+        let nd_text = $nodata.map(|n: $t| format!("{}", n));
+        write_geo_tags(img.encoder(), nd_text.as_deref());
+        img.write_data(&data).unwrap();
+        cur.into_inner()
+    }};
+}
+
+fn check_generated(bytes: &[u8], w: usize, h: usize, nodata_first: bool) {
+    let dem = decode_dem(bytes, Some("gen.tif"), &opts()).unwrap();
+    assert_eq!((dem.width, dem.height), (w, h));
+    let expect = grid_values(w, h);
+    for (i, (&got, &want)) in dem.heights.iter().zip(&expect).enumerate() {
+        if i == 0 && nodata_first {
+            assert!(got.is_nan());
+        } else {
+            assert_eq!(f64::from(got), want, "cell {i}");
+        }
+    }
+    assert_eq!(dem.georef.epsg, Some(4326));
+    assert!(dem.georef.geographic);
+    assert_eq!(dem.georef.transform.unwrap()[0], 10.0);
+    let (m_lat, m_lon) = metres_per_degree(47.0 - h as f64 / 2400.0);
+    assert!(close(dem.dx, m_lon / 1200.0, 1e-6) && close(dem.dy, m_lat / 1200.0, 1e-6));
+}
+
+#[test]
+fn geotiff_sample_types_and_compressions() {
+    use tiff::encoder::colortype::{Gray16, Gray32Float, Gray64Float, GrayI16, GrayI32};
+    use tiff::encoder::compression::{Deflate, Lzw, Packbits, Uncompressed};
+    let (w, h) = (37, 23);
+    check_generated(
+        &typed_tiff!(GrayI16, i16, w, h, Some(-32768i16), Lzw),
+        w,
+        h,
+        true,
+    );
+    check_generated(
+        &typed_tiff!(Gray16, u16, w, h, Some(0u16), Deflate::default()),
+        w,
+        h,
+        true,
+    );
+    check_generated(
+        &typed_tiff!(GrayI32, i32, w, h, Some(-9999i32), Uncompressed),
+        w,
+        h,
+        true,
+    );
+    check_generated(
+        &typed_tiff!(GrayI32, i32, w, h, None::<i32>, Packbits),
+        w,
+        h,
+        false,
+    );
+    check_generated(
+        &typed_tiff!(Gray32Float, f32, w, h, Some(f32::NAN), Lzw),
+        w,
+        h,
+        true,
+    );
+    check_generated(
+        &typed_tiff!(Gray64Float, f64, w, h, Some(-3.4e38f64), Deflate::default()),
+        w,
+        h,
+        true,
+    );
+}
+
+/// A minimal little-endian TIFF writer for layouts the `tiff` encoder cannot produce (tiles,
+/// absurd sizes). `entries` are (tag, type, count, little-endian value bytes); `chunks` are the
+/// strips or tiles, whose offsets and byte counts are added (`offsets_tag` 273 strips, 324 tiles).
+fn raw_tiff(
+    mut entries: Vec<(u16, u16, u32, Vec<u8>)>,
+    chunks: &[Vec<u8>],
+    offsets_tag: u16,
+) -> Vec<u8> {
+    let mut out = b"II*\0\0\0\0\0".to_vec();
+    let mut offsets = Vec::new();
+    for c in chunks {
+        offsets.extend((out.len() as u32).to_le_bytes());
+        out.extend(c);
+    }
+    let counts: Vec<u8> = chunks
+        .iter()
+        .flat_map(|c| (c.len() as u32).to_le_bytes())
+        .collect();
+    entries.push((offsets_tag, 4, chunks.len() as u32, offsets));
+    let counts_tag = if offsets_tag == 273 { 279 } else { 325 };
+    entries.push((counts_tag, 4, chunks.len() as u32, counts));
+    entries.sort_by_key(|e| e.0);
+    let mut fixed = Vec::new();
+    for (tag, ty, count, mut bytes) in entries {
+        let value = if bytes.len() <= 4 {
+            bytes.resize(4, 0);
+            bytes
+        } else {
+            if out.len() % 2 == 1 {
+                out.push(0);
+            }
+            let off = out.len() as u32;
+            out.extend(&bytes);
+            off.to_le_bytes().to_vec()
+        };
+        fixed.push((tag, ty, count, value));
+    }
+    if out.len() % 2 == 1 {
+        out.push(0);
+    }
+    let ifd = out.len() as u32;
+    out[4..8].copy_from_slice(&ifd.to_le_bytes());
+    out.extend((fixed.len() as u16).to_le_bytes());
+    for (tag, ty, count, value) in fixed {
+        out.extend(tag.to_le_bytes());
+        out.extend(ty.to_le_bytes());
+        out.extend(count.to_le_bytes());
+        out.extend(value);
+    }
+    out.extend(0u32.to_le_bytes());
+    out
+}
+
+fn short(tag: u16, v: u16) -> (u16, u16, u32, Vec<u8>) {
+    (tag, 3, 1, v.to_le_bytes().to_vec())
+}
+fn long(tag: u16, v: u32) -> (u16, u16, u32, Vec<u8>) {
+    (tag, 4, 1, v.to_le_bytes().to_vec())
+}
+fn doubles(tag: u16, v: &[f64]) -> (u16, u16, u32, Vec<u8>) {
+    (
+        tag,
+        12,
+        v.len() as u32,
+        v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+    )
+}
+fn shorts(tag: u16, v: &[u16]) -> (u16, u16, u32, Vec<u8>) {
+    (
+        tag,
+        3,
+        v.len() as u32,
+        v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+    )
+}
+
+/// Tiled int16 GeoTIFF (16×16 tiles, partial edge tiles), uncompressed or deflate.
+fn tiled_tiff(w: usize, h: usize, deflate: bool) -> Vec<u8> {
+    let t = 16;
+    let vals = grid_values(w, h);
+    let mut tiles = Vec::new();
+    for ty in 0..h.div_ceil(t) {
+        for tx in 0..w.div_ceil(t) {
+            let mut tile = Vec::new();
+            for r in 0..t {
+                for c in 0..t {
+                    let (row, col) = (ty * t + r, tx * t + c);
+                    let v = if row < h && col < w {
+                        vals[row * w + col] as i16
+                    } else {
+                        0
+                    };
+                    tile.extend(v.to_le_bytes());
+                }
+            }
+            if deflate {
+                use std::io::Write;
+                let mut z =
+                    flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+                z.write_all(&tile).unwrap();
+                tile = z.finish().unwrap();
+            }
+            tiles.push(tile);
+        }
+    }
+    let entries = vec![
+        long(256, w as u32),
+        long(257, h as u32),
+        short(258, 16),
+        short(259, if deflate { 8 } else { 1 }),
+        short(262, 1),
+        short(277, 1),
+        short(284, 1),
+        short(322, t as u16),
+        short(323, t as u16),
+        short(339, 2),
+        doubles(33550, &[1.0 / 1200.0, 1.0 / 1200.0, 0.0]),
+        doubles(33922, &[0.0, 0.0, 0.0, 10.0, 47.0, 0.0]),
+        shorts(
+            34735,
+            &[1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326],
+        ),
+    ];
+    raw_tiff(entries, &tiles, 324)
+}
+
+#[test]
+fn geotiff_tiled_uncompressed_and_deflate() {
+    check_generated(&tiled_tiff(37, 23, false), 37, 23, false);
+    check_generated(&tiled_tiff(40, 33, true), 40, 33, false);
+}
+
+#[test]
+fn geotiff_absurd_dimensions_refused_before_decoding() {
+    let entries = vec![
+        long(256, 4_000_000_000),
+        long(257, 4_000_000_000),
+        short(258, 16),
+        short(259, 1),
+        short(262, 1),
+        short(277, 1),
+        long(278, 4_000_000_000),
+        short(339, 2),
+    ];
+    let bytes = raw_tiff(entries, &[vec![0u8; 8]], 273);
+    let e = decode_dem(&bytes, None, &opts()).unwrap_err();
+    assert!(matches!(e, InputError::TooLarge { .. }), "{e:?}");
+}
+
+#[test]
+fn plain_tiff_needs_cell_size() {
+    let mut cur = std::io::Cursor::new(Vec::new());
+    tiff::encoder::TiffEncoder::new(&mut cur)
+        .unwrap()
+        .write_image::<tiff::encoder::colortype::Gray16>(4, 4, &[7u16; 16])
+        .unwrap();
+    let bytes = cur.into_inner();
+    match decode_dem(&bytes, None, &opts()).unwrap_err() {
+        InputError::Param(p) => assert_eq!(p.field, "cell_size"),
+        e => panic!("{e:?}"),
+    }
+    let o = DemOptions {
+        cell_size: Some(2.5),
+        ..opts()
+    };
+    let dem = decode_dem(&bytes, None, &o).unwrap();
+    assert_eq!((dem.dx, dem.dy, dem.georef.transform), (2.5, 2.5, None));
+}
+
+#[test]
+fn geotiff_pixel_is_point_and_transformation() {
+    let vals: Vec<u8> = (0..16i16).flat_map(|v| v.to_le_bytes()).collect();
+    let base = || {
+        vec![
+            long(256, 4),
+            long(257, 4),
+            short(258, 16),
+            short(259, 1),
+            short(262, 1),
+            short(277, 1),
+            long(278, 4),
+            short(339, 2),
+        ]
+    };
+    // PixelIsPoint: the tiepoint names the first cell's centre.
+    let mut e = base();
+    e.push(doubles(33550, &[30.0, 30.0, 0.0]));
+    e.push(doubles(33922, &[0.0, 0.0, 0.0, 1000.0, 2000.0, 0.0]));
+    e.push(shorts(
+        34735,
+        &[1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, 32633],
+    ));
+    let dem = decode_dem(&raw_tiff(e, &[vals.clone()], 273), None, &opts()).unwrap();
+    assert_eq!(
+        dem.georef.transform,
+        Some([985.0, 30.0, 0.0, 2015.0, 0.0, -30.0])
+    );
+    assert_eq!(dem.georef.epsg, Some(32633));
+    // ModelTransformation with US survey feet.
+    let mut e = base();
+    let m = [
+        3.0, 0.0, 0.0, 500.0, 0.0, -3.0, 0.0, 800.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+    ];
+    e.push(doubles(34264, &m));
+    e.push(shorts(
+        34735,
+        &[1, 1, 0, 2, 1024, 0, 1, 1, 3076, 0, 1, 9003],
+    ));
+    let dem = decode_dem(&raw_tiff(e, &[vals], 273), None, &opts()).unwrap();
+    assert_eq!(
+        dem.georef.transform,
+        Some([500.0, 3.0, 0.0, 800.0, 0.0, -3.0])
+    );
+    assert!(close(dem.dx, 3.0 * 1200.0 / 3937.0, 1e-12));
+}
