@@ -24,6 +24,10 @@
 //! This keeps nodata regions and nodata margins transparent from any view while the horizon stays
 //! sky.
 //!
+//! **Sky.** A vertical gradient in *screen space*, `sky_top` at the top row to `sky_horizon` at
+//! the bottom (`(1 − y/h)^1.5`): orbit views look down, so a gradient by ray elevation would show
+//! only the horizon colour.
+//!
 //! **Aerial perspective** (SPEC §1 step 8): the depth d ∈ [0, 1] runs from the nearest to the
 //! farthest point of the DEM's bounding box as seen from the eye (a view-dependent, scene-
 //! independent range, so tiles of a sweep get the same haze); the colour moves toward the mean of
@@ -413,8 +417,11 @@ impl<'a> TerrainAccel<'a> {
         out
     }
 
-    /// True when a ray that hit nothing went down through the DEM's footprint (a hole): it
-    /// crosses the plane of the lowest valid height inside the footprint at `t ≥ tmin`.
+    /// True when a ray that hit nothing fell through a hole: it enters the DEM's footprint
+    /// (the `x`, `z` rectangle) above the terrain's edge — or over a nodata stretch of the edge, or
+    /// starts inside the footprint — and then crosses the plane of the lowest valid height inside
+    /// the footprint at `t ≥ tmin`. Rays that pass *under* a valid edge see the cut face of the
+    /// DEM and get the sky instead of a transparent sliver.
     pub fn through_footprint(&self, origin: [f64; 3], dir: [f64; 3], tmin: f64) -> bool {
         if self.levels.is_empty() || dir[1] == 0.0 {
             return false;
@@ -425,7 +432,45 @@ impl<'a> TerrainAccel<'a> {
         }
         let x = origin[0] + dir[0] * t;
         let z = origin[2] + dir[2] * t;
-        x.abs() <= self.half_x && z.abs() <= self.half_z
+        if x.abs() > self.half_x || z.abs() > self.half_z {
+            return false;
+        }
+        // Horizontal entry into the footprint: the later of the two slab entries.
+        let r = self.grid_ray(origin, dir);
+        let entry = |o: f64, d: f64, hi: f64| -> f64 {
+            if d > 0.0 {
+                -o / d
+            } else if d < 0.0 {
+                (hi - o) / d
+            } else {
+                f64::NEG_INFINITY
+            }
+        };
+        let tu = entry(r.ou, r.du, self.cw as f64);
+        let tv = entry(r.ov, r.dv, self.ch as f64);
+        let te = tu.max(tv);
+        if te <= tmin {
+            return true; // starts inside the footprint
+        }
+        let s = &self.scene;
+        let (u, v) = (r.ou + r.du * te, r.ov + r.dv * te);
+        // Height of the edge line at the entry point (linear between its grid points).
+        let edge = |along: f64, n: usize, at: &dyn Fn(usize) -> f32| -> f64 {
+            let a = along.clamp(0.0, n as f64);
+            let i = (a.floor() as usize).min(n.saturating_sub(1));
+            let f = a - i as f64;
+            let (h0, h1) = (f64::from(at(i)), f64::from(at((i + 1).min(n))));
+            h0 + (h1 - h0) * f
+        };
+        let h_edge = if tu >= tv {
+            let col = if r.du > 0.0 { 0 } else { self.cw };
+            edge(v, self.ch, &|j| s.heights[j * s.width + col])
+        } else {
+            let row = if r.dv > 0.0 { 0 } else { self.ch };
+            edge(u, self.cw, &|i| s.heights[row * s.width + i])
+        };
+        // NaN edge (nodata margin) compares false: the ray counts as falling through.
+        !(r.oy + r.dy * te < h_edge - self.eps_y)
     }
 
     /// Distances from `eye` to the nearest and farthest points of the bounding box.
@@ -484,7 +529,13 @@ impl<'a> TerrainAccel<'a> {
         for (o, d, inv, lo, hi) in [
             (r.ou, r.du, r.inv_du, 0.0, self.cw as f64),
             (r.ov, r.dv, r.inv_dv, 0.0, self.ch as f64),
-            (r.oy, r.dy, 1.0 / r.dy, self.hmin - self.eps_y, self.hmax + self.eps_y),
+            (
+                r.oy,
+                r.dy,
+                1.0 / r.dy,
+                self.hmin - self.eps_y,
+                self.hmax + self.eps_y,
+            ),
         ] {
             if d == 0.0 {
                 if o < lo || o > hi {
@@ -676,14 +727,14 @@ struct Shader<'s, 'a> {
 
 impl Shader<'_, '_> {
     #[inline]
-    fn shade(&self, dir: [f64; 3]) -> ([f32; 3], f32) {
+    fn shade(&self, dir: [f64; 3], y_frac: f32) -> ([f32; 3], f32) {
         let acc = self.accel;
         let l = self.light;
         let Some(hit) = acc.intersect(self.eye, dir, 0.0, f64::INFINITY) else {
             if acc.through_footprint(self.eye, dir, 0.0) {
                 return ([0.0; 3], 0.0);
             }
-            return (self.sky(dir), 1.0);
+            return (self.sky(y_frac), 1.0);
         };
         let albedo = acc.hit_albedo(&hit);
         let mut c = albedo;
@@ -727,9 +778,9 @@ impl Shader<'_, '_> {
     }
 
     #[inline]
-    fn sky(&self, dir: [f64; 3]) -> [f32; 3] {
+    fn sky(&self, y_frac: f32) -> [f32; 3] {
         let l = self.light;
-        let s = (dir[1].max(0.0) as f32).sqrt();
+        let s = (1.0 - y_frac).clamp(0.0, 1.0).powf(1.5);
         [
             l.sky_horizon[0] + (l.sky_top[0] - l.sky_horizon[0]) * s,
             l.sky_horizon[1] + (l.sky_top[1] - l.sky_horizon[1]) * s,
@@ -803,11 +854,12 @@ pub fn render_with(
             ctl.checkpoint()?;
             for (ry, row) in band.chunks_mut(w * 4).enumerate() {
                 let y = (b * BAND + ry) as f64;
+                let y_frac = ((y + 0.5) / h as f64) as f32;
                 for (x, px) in row.chunks_exact_mut(4).enumerate() {
                     let mut sum = [0.0f32; 3];
                     let mut cover = 0.0f32;
                     for &(ox, oy) in pattern {
-                        let (c, a) = shader.shade(gen.dir(x as f64 + ox, y + oy));
+                        let (c, a) = shader.shade(gen.dir(x as f64 + ox, y + oy), y_frac);
                         for ch in 0..3 {
                             sum[ch] += c[ch] * a;
                         }
