@@ -579,3 +579,464 @@ fn geotiff_pixel_is_point_and_transformation() {
     );
     assert!(close(dem.dx, 3.0 * 1200.0 / 3937.0, 1e-12));
 }
+
+// ---------- HGT ----------
+
+fn hgt_bytes(side: usize) -> Vec<u8> {
+    (0..side * side)
+        .flat_map(|i| {
+            let v: i16 = if i % 1000 == 7 {
+                -32768
+            } else {
+                ((i % side) + (i / side)) as i16 - 50
+            };
+            v.to_be_bytes()
+        })
+        .collect()
+}
+
+#[test]
+fn hgt_3_arcsecond_tile() {
+    let bytes = hgt_bytes(1201);
+    assert_eq!(sniff(&bytes, Some("N35E139.hgt")), Some(DemFormat::Hgt));
+    assert_eq!(sniff(&bytes, None), Some(DemFormat::Hgt));
+    let dem = decode_dem(&bytes, Some("N35E139.hgt"), &opts()).unwrap();
+    assert_eq!((dem.width, dem.height), (1201, 1201));
+    let voids = (0..1201 * 1201).filter(|i| i % 1000 == 7).count();
+    assert_eq!(dem.width * dem.height - dem.valid_cells(), voids);
+    assert_eq!(dem.at(3, 2), 3.0 + 2.0 - 50.0);
+    assert_eq!(dem.georef.epsg, Some(4326));
+    let t = dem.georef.transform.unwrap();
+    let res = 1.0 / 1200.0;
+    // Cell centres on whole degrees: corners half a cell outside.
+    assert!(close(t[0], 139.0 - res / 2.0, 1e-12) && close(t[3], 36.0 + res / 2.0, 1e-12));
+    assert!(close(t[1], res, 1e-15) && close(t[5], -res, 1e-15));
+    let (m_lat, m_lon) = metres_per_degree(35.5);
+    assert!(close(dem.dx, m_lon * res, 1e-6) && close(dem.dy, m_lat * res, 1e-6));
+    let south = decode_dem(&bytes, Some("s12w077.hgt"), &opts()).unwrap();
+    assert_eq!(south.georef.transform.unwrap()[3], -11.0 + res / 2.0);
+}
+
+#[test]
+fn hgt_1_arcsecond_and_bad_sizes() {
+    let dem = decode_dem(&hgt_bytes(3601), Some("N00E000.hgt"), &opts()).unwrap();
+    assert_eq!((dem.width, dem.height), (3601, 3601));
+    assert!(close(dem.georef.transform.unwrap()[1], 1.0 / 3600.0, 1e-15));
+    let e = decode_dem(&[0u8; 1000], Some("N35E139.hgt"), &opts()).unwrap_err();
+    assert!(matches!(e, InputError::Corrupt { .. }), "{e:?}");
+    let small = DemOptions {
+        max_cells: 1_000_000,
+        ..opts()
+    };
+    let e = decode_dem(&hgt_bytes(1201), Some("N35E139.hgt"), &small).unwrap_err();
+    assert!(matches!(e, InputError::TooLarge { .. }), "{e:?}");
+    // A name that is not a tile name: no georeferencing, so cell_size is needed.
+    match decode_dem(&hgt_bytes(1201), Some("tile.hgt"), &opts()).unwrap_err() {
+        InputError::Param(p) => assert_eq!(p.field, "cell_size"),
+        e => panic!("{e:?}"),
+    }
+}
+
+// ---------- PNG ----------
+
+fn png_bytes(w: u32, h: u32, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(color);
+    enc.set_depth(depth);
+    enc.write_header().unwrap().write_image_data(data).unwrap();
+    out
+}
+
+#[test]
+fn png16_heights_and_scale() {
+    let (w, h) = (5u32, 4u32);
+    let data: Vec<u8> = (0..w * h)
+        .flat_map(|i| (i as u16 * 1000).to_be_bytes())
+        .collect();
+    let bytes = png_bytes(
+        w,
+        h,
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+        &data,
+    );
+    assert_eq!(sniff(&bytes, Some("x.png")), Some(DemFormat::Png16));
+    match decode_dem(&bytes, None, &opts()).unwrap_err() {
+        InputError::Param(p) => assert_eq!(p.field, "cell_size"),
+        e => panic!("{e:?}"),
+    }
+    let o = DemOptions {
+        cell_size: Some(5.0),
+        vertical_scale: Some(0.1),
+        ..opts()
+    };
+    let dem = decode_dem(&bytes, None, &o).unwrap();
+    assert_eq!((dem.width, dem.height, dem.dx, dem.dy), (5, 4, 5.0, 5.0));
+    assert_eq!(dem.at(2, 3), 1700.0);
+    assert_eq!(dem.georef.transform, None);
+    // 8-bit greyscale is accepted; colour is not.
+    let o = DemOptions {
+        cell_size: Some(1.0),
+        ..opts()
+    };
+    let g8 = png_bytes(
+        3,
+        3,
+        png::ColorType::Grayscale,
+        png::BitDepth::Eight,
+        &[9; 9],
+    );
+    assert_eq!(decode_dem(&g8, None, &o).unwrap().at(1, 1), 9.0);
+    let rgb = png_bytes(3, 3, png::ColorType::Rgb, png::BitDepth::Eight, &[9; 27]);
+    let e = decode_dem(&rgb, None, &o).unwrap_err();
+    assert!(matches!(e, InputError::UnsupportedFormat(_)), "{e:?}");
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = 0xffff_ffffu32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xedb8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+#[test]
+fn png_absurd_header_is_too_large() {
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend(2_000_000_000u32.to_be_bytes());
+    ihdr.extend(2_000_000_000u32.to_be_bytes());
+    ihdr.extend([16, 0, 0, 0, 0]);
+    let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+    bytes.extend(13u32.to_be_bytes());
+    bytes.extend(&ihdr);
+    bytes.extend(crc32(&ihdr).to_be_bytes());
+    let o = DemOptions {
+        cell_size: Some(1.0),
+        ..opts()
+    };
+    let e = decode_dem(&bytes, None, &o).unwrap_err();
+    assert!(matches!(e, InputError::TooLarge { .. }), "{e:?}");
+}
+
+// ---------- NPY ----------
+
+fn npy_bytes<T: npyz::AutoSerialize + Copy>(shape: &[u64], data: &[T]) -> Vec<u8> {
+    use npyz::WriterBuilder;
+    let mut out = Vec::new();
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(shape)
+        .writer(&mut out)
+        .begin_nd()
+        .unwrap();
+    w.extend(data.iter().copied()).unwrap();
+    w.finish().unwrap();
+    out
+}
+
+#[test]
+fn npy_dtypes() {
+    let vals = grid_values(6, 4);
+    let o = opts();
+    let check = |bytes: Vec<u8>| {
+        assert_eq!(sniff(&bytes, None), Some(DemFormat::Npy));
+        let dem = decode_dem(&bytes, Some("a.npy"), &o).unwrap();
+        assert_eq!((dem.width, dem.height, dem.dx), (6, 4, 1.0));
+        for (g, w) in dem.heights.iter().zip(&vals) {
+            assert_eq!(f64::from(*g), *w);
+        }
+    };
+    let s = [4u64, 6];
+    check(npy_bytes(
+        &s,
+        &vals.iter().map(|&v| v as f32).collect::<Vec<_>>(),
+    ));
+    check(npy_bytes(&s, &vals));
+    check(npy_bytes(
+        &s,
+        &vals.iter().map(|&v| v as i16).collect::<Vec<_>>(),
+    ));
+    check(npy_bytes(
+        &s,
+        &vals.iter().map(|&v| v as u16).collect::<Vec<_>>(),
+    ));
+    check(npy_bytes(
+        &s,
+        &vals.iter().map(|&v| v as i32).collect::<Vec<_>>(),
+    ));
+    check(npy_bytes(
+        &s,
+        &vals.iter().map(|&v| v as u8).collect::<Vec<_>>(),
+    ));
+}
+
+#[test]
+fn npy_nan_scale_and_errors() {
+    let mut v = vec![1.0f32; 16];
+    v[5] = f32::NAN;
+    let o = DemOptions {
+        cell_size: Some(2.0),
+        vertical_scale: Some(3.0),
+        ..opts()
+    };
+    let dem = decode_dem(&npy_bytes(&[4, 4], &v), None, &o).unwrap();
+    assert_eq!((dem.valid_cells(), dem.at(0, 0), dem.dx), (15, 3.0, 2.0));
+    assert!(dem.at(1, 1).is_nan());
+    let e = decode_dem(&npy_bytes(&[2, 2, 4], &v), None, &opts()).unwrap_err();
+    assert!(matches!(e, InputError::Unusable(_)), "{e:?}");
+    let full = npy_bytes(&[4, 4], &v);
+    let e = decode_dem(&full[..full.len() - 3], None, &opts()).unwrap_err();
+    assert!(matches!(e, InputError::Corrupt { .. }), "{e:?}");
+    // Absurd shapes: over the limit, and overflowing u64.
+    for shape in [
+        "(100000000, 100000000)",
+        "(4294967296, 4294967296, 4294967296)",
+    ] {
+        let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+        while (header.len() + 11) % 64 != 0 {
+            header.push(' ');
+        }
+        header.push('\n');
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend((header.len() as u16).to_le_bytes());
+        bytes.extend(header.as_bytes());
+        bytes.extend([0u8; 64]);
+        let e = decode_dem(&bytes, None, &opts()).unwrap_err();
+        assert!(matches!(e, InputError::TooLarge { .. }), "{shape}: {e:?}");
+    }
+}
+
+// ---------- writer round trip ----------
+
+fn same_heights(a: &[f32], b: &[f32]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| x == y || (x.is_nan() && y.is_nan()))
+}
+
+fn round_trip(dem: &Dem) -> Dem {
+    let bytes = write_float32_geotiff(dem.width, dem.height, &dem.heights, &dem.georef);
+    decode_dem(&bytes, Some("out.tif"), &opts()).unwrap()
+}
+
+#[test]
+fn writer_round_trips_real_dems() {
+    for path in [
+        dem_path!("tanzawa_sagami_aster_gdem2.tif"),
+        dem_path!("luxembourg_elev.tif"),
+        dem_path!("olinda_dem_utm25s.tif"),
+        dem_path!("colorado_front_range_srtmgl3_f32.tif"),
+        dem_path!("jacksboro_fault_dem_f32.tif"),
+        dem_path!("maunga_whau_volcano.asc"),
+        dem_path!("colorado_front_range_srtmgl3.asc"),
+    ] {
+        let dem = read(path);
+        let back = round_trip(&dem);
+        assert_eq!((back.width, back.height), (dem.width, dem.height), "{path}");
+        assert!(same_heights(&back.heights, &dem.heights), "{path}");
+        assert_eq!(back.georef.transform, dem.georef.transform, "{path}");
+        assert_eq!(back.georef.epsg, dem.georef.epsg, "{path}");
+        assert_eq!(back.georef.geographic, dem.georef.geographic, "{path}");
+        assert_eq!(back.georef.tags, dem.georef.tags, "{path}");
+        match (back.georef.nodata, dem.georef.nodata) {
+            (Some(a), Some(b)) => assert!(a == b || (a.is_nan() && b.is_nan()), "{path}"),
+            (a, b) => assert_eq!(a, b, "{path}"),
+        }
+        assert_eq!((back.dx, back.dy), (dem.dx, dem.dy), "{path}");
+    }
+}
+
+#[test]
+fn writer_nodata_rules() {
+    let dem = read(dem_path!("luxembourg_elev.tif"));
+    let bytes = write_float32_geotiff(dem.width, dem.height, &dem.heights, &dem.georef);
+    // NaN cells are stored as the input's nodata value, tagged "-32768".
+    let mut d = tiff::decoder::Decoder::new(std::io::Cursor::new(&bytes)).unwrap();
+    assert_eq!(
+        d.get_tag_ascii_string(tiff::tags::Tag::GdalNodata).unwrap(),
+        "-32768"
+    );
+    let tiff::decoder::DecodingResult::F32(raw) = d.read_image().unwrap() else {
+        panic!()
+    };
+    assert_eq!(raw.iter().filter(|&&v| v == -32768.0).count(), 3942);
+    // No input nodata but NaN cells: NaN, tagged "nan".
+    let mut dem = read(dem_path!("jacksboro_fault_dem_f32.tif"));
+    dem.heights[10] = f32::NAN;
+    let bytes = write_float32_geotiff(dem.width, dem.height, &dem.heights, &dem.georef);
+    let mut d = tiff::decoder::Decoder::new(std::io::Cursor::new(&bytes)).unwrap();
+    assert_eq!(
+        d.get_tag_ascii_string(tiff::tags::Tag::GdalNodata).unwrap(),
+        "nan"
+    );
+    let back = decode_dem(&bytes, None, &opts()).unwrap();
+    assert_eq!(back.valid_cells(), dem.width * dem.height - 1);
+    // No nodata and no NaN: no tag.
+    let clean = read(dem_path!("jacksboro_fault_dem_f32.tif"));
+    let bytes = write_float32_geotiff(clean.width, clean.height, &clean.heights, &clean.georef);
+    let mut d = tiff::decoder::Decoder::new(std::io::Cursor::new(&bytes)).unwrap();
+    assert!(d.find_tag(tiff::tags::Tag::GdalNodata).unwrap().is_none());
+}
+
+#[test]
+fn writer_synthesises_tags_for_hand_built_georef() {
+    let georef = phenomena_engine::geom::heightfield::GeoRef {
+        transform: Some([500000.0, 20.0, 0.0, 4000000.0, 0.0, -20.0]),
+        epsg: Some(32633),
+        ..Default::default()
+    };
+    let vals: Vec<f32> = (0..20).map(|i| i as f32).collect();
+    let back = decode_dem(&write_float32_geotiff(5, 4, &vals, &georef), None, &opts()).unwrap();
+    assert_eq!(back.georef.transform, georef.transform);
+    assert_eq!(back.georef.epsg, Some(32633));
+    assert_eq!((back.dx, back.dy), (20.0, 20.0));
+    assert_eq!(back.heights, vals);
+}
+
+// ---------- robustness ----------
+
+/// Decoding must return (Ok or a clean error), never panic — including inside the third-party
+/// decoders, whose panics `decode_dem` turns into an error with this detail.
+fn no_panic(bytes: &[u8], name: Option<&str>, o: &DemOptions) -> Result<Dem, InputError> {
+    let r = decode_dem(bytes, name, o);
+    if let Err(InputError::Corrupt { detail, .. }) = &r {
+        assert!(!detail.contains("panicked"), "decoder panicked on {name:?}");
+    }
+    r
+}
+
+fn fuzz_inputs() -> Vec<(Vec<u8>, &'static str)> {
+    let mut v = Vec::new();
+    for path in [
+        dem_path!("luxembourg_elev.tif"),
+        dem_path!("olinda_dem_utm25s.tif"),
+        dem_path!("maunga_whau_volcano.asc"),
+    ] {
+        v.push((
+            std::fs::read(path).unwrap(),
+            path.rsplit('/').next().unwrap(),
+        ));
+    }
+    let vals: Vec<f32> = (0..400).map(|i| i as f32).collect();
+    v.push((npy_bytes(&[20, 20], &vals), "a.npy"));
+    let data: Vec<u8> = (0..400u16).flat_map(|i| i.to_be_bytes()).collect();
+    v.push((
+        png_bytes(
+            20,
+            20,
+            png::ColorType::Grayscale,
+            png::BitDepth::Sixteen,
+            &data,
+        ),
+        "a.png",
+    ));
+    v.push((tiled_tiff(37, 23, true), "tiled.tif"));
+    let lux = read(dem_path!("luxembourg_elev.tif"));
+    v.push((
+        write_float32_geotiff(lux.width, lux.height, &lux.heights, &lux.georef),
+        "w.tif",
+    ));
+    v
+}
+
+#[test]
+fn truncated_files_are_errors() {
+    let o = DemOptions {
+        cell_size: Some(1.0),
+        ..opts()
+    };
+    for (bytes, name) in fuzz_inputs() {
+        for k in [0, 1, 2, 3, 5, 8, 16, 64] {
+            let n = bytes.len() * k / 100;
+            assert!(
+                no_panic(&bytes[..n], Some(name), &o).is_err(),
+                "{name} cut at {n}"
+            );
+            assert!(no_panic(&bytes[..k.min(bytes.len())], None, &o).is_err());
+        }
+        for k in 1..10 {
+            let n = bytes.len() * k / 10;
+            assert!(
+                no_panic(&bytes[..n], Some(name), &o).is_err(),
+                "{name} cut at {n}"
+            );
+        }
+    }
+    let hgt = hgt_bytes(1201);
+    for n in [0, 2, 1000, hgt.len() / 2, hgt.len() - 2] {
+        assert!(no_panic(&hgt[..n], Some("N35E139.hgt"), &o).is_err());
+    }
+}
+
+#[test]
+fn flipped_bytes_never_panic() {
+    let o = DemOptions {
+        cell_size: Some(1.0),
+        max_cells: 1 << 22,
+        ..opts()
+    };
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    for (bytes, name) in fuzz_inputs() {
+        for _ in 0..300 {
+            let mut b = bytes.clone();
+            // Mostly hit headers and directories, where a flip changes sizes and offsets.
+            let span = if next() % 2 == 0 {
+                b.len().min(512)
+            } else {
+                b.len()
+            };
+            for _ in 0..1 + next() % 4 {
+                let i = (next() as usize) % span;
+                b[i] ^= 1 << (next() % 8);
+            }
+            let _ = no_panic(&b, Some(name), &o);
+        }
+    }
+}
+
+#[test]
+fn sniffing() {
+    assert_eq!(sniff(b"II*\0rest", None), Some(DemFormat::GeoTiff));
+    assert_eq!(sniff(b"MM\0*rest", Some("a.asc")), Some(DemFormat::GeoTiff));
+    assert_eq!(sniff(b"  NCOLS 3\n", None), Some(DemFormat::EsriAscii));
+    assert_eq!(
+        sniff(b"whatever", Some("dem.ASC")),
+        Some(DemFormat::EsriAscii)
+    );
+    assert_eq!(
+        sniff(b"whatever", Some("N35E139.HGT")),
+        Some(DemFormat::Hgt)
+    );
+    assert_eq!(sniff(b"\x93NUMPY\x01\x00", None), Some(DemFormat::Npy));
+    assert_eq!(sniff(b"hello", Some("a.txt")), None);
+    let e = decode_dem(b"hello", Some("a.txt"), &opts()).unwrap_err();
+    assert!(matches!(e, InputError::UnsupportedFormat(_)));
+}
+
+#[test]
+fn wgs84_metres_per_degree() {
+    // Standard values: 110 574 m per degree of latitude and 111 320 m of longitude at the
+    // equator; 111 694 m of latitude near the pole.
+    let (lat0, lon0) = metres_per_degree(0.0);
+    assert!(
+        close(lat0, 110_574.3, 0.5) && close(lon0, 111_319.5, 0.5),
+        "{lat0} {lon0}"
+    );
+    let (lat89, _) = metres_per_degree(89.9);
+    assert!(close(lat89, 111_693.9, 1.0), "{lat89}");
+}

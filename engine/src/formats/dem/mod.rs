@@ -150,7 +150,7 @@ pub fn decode_dem(
     .unwrap_or_else(|_| {
         Err(InputError::Corrupt {
             format: format.name(),
-            detail: "the decoder failed on malformed data".to_string(),
+            detail: "the decoder panicked on malformed data".to_string(),
         })
     })?;
     finish(decoded)

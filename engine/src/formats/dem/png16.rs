@@ -9,7 +9,7 @@
 //! height (Mapbox/Terrarium encodings differ), and guessing silently would be worse than saying
 //! so.
 //!
-//! The header's size is checked against `max_cells` before the image is decoded, and the `png`
+//! The IHDR size is checked against `max_cells` before the image is decoded, and the `png`
 //! crate's own memory limit is set to the decoded size of that many 16-bit grey + alpha pixels.
 
 use png::{BitDepth, ColorType, Transformations};
@@ -28,6 +28,15 @@ fn corrupt(e: impl std::fmt::Display) -> InputError {
 }
 
 pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError> {
+    // IHDR is the first chunk (signature 8 bytes, length 4, type 4, then width and height):
+    // refuse absurd sizes before the png crate reads any further.
+    if let (Some(b"IHDR"), Some(w), Some(h)) =
+        (bytes.get(12..16), bytes.get(16..20), bytes.get(20..24))
+    {
+        let w = u32::from_be_bytes([w[0], w[1], w[2], w[3]]);
+        let h = u32::from_be_bytes([h[0], h[1], h[2], h[3]]);
+        check_cells(u64::from(w), u64::from(h), opts.max_cells)?;
+    }
     let limit = usize::try_from(opts.max_cells.saturating_mul(4)).unwrap_or(usize::MAX);
     let mut decoder = png::Decoder::new_with_limits(bytes, png::Limits { bytes: limit });
     decoder.set_transformations(Transformations::IDENTITY);
