@@ -139,7 +139,7 @@ mod tests {
     fn nodata_texts_parse_back() {
         for v in [-32768.0, 0.0, -9999.0, -3.4028234663852886e38, 1.5, 1e-30] {
             let t = nodata_text(v);
-            assert_eq!(t.parse::<f64>().unwrap(), v, "{t}");
+            assert_eq!(t.parse::<f64>(), Ok(v), "{t}");
         }
         assert_eq!(nodata_text(-32768.0), "-32768");
         assert_eq!(nodata_text(f64::NAN), "nan");

@@ -3,6 +3,8 @@
 //! GeoTIFF writer's round trip, and fuzz-style robustness (truncation, flipped bytes, absurd
 //! headers → an error, never a panic).
 
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
+
 use phenomena_engine::formats::dem::{decode_dem, metres_per_degree, sniff, DemFormat, DemOptions};
 use phenomena_engine::formats::geotiff_write::write_float32_geotiff;
 use phenomena_engine::geom::heightfield::Dem;
@@ -556,7 +558,12 @@ fn geotiff_pixel_is_point_and_transformation() {
         34735,
         &[1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, 32633],
     ));
-    let dem = decode_dem(&raw_tiff(e, &[vals.clone()], 273), None, &opts()).unwrap();
+    let dem = decode_dem(
+        &raw_tiff(e, std::slice::from_ref(&vals), 273),
+        None,
+        &opts(),
+    )
+    .unwrap();
     assert_eq!(
         dem.georef.transform,
         Some([985.0, 30.0, 0.0, 2015.0, 0.0, -30.0])

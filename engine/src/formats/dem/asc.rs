@@ -92,7 +92,7 @@ pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError>
             .parse()
             .map_err(|_| corrupt(format!("header {key} = {value:?} is not a number")))?;
         let count = |v: f64| -> Result<u64, InputError> {
-            if v.fract() == 0.0 && v >= 0.0 && v < 1e15 {
+            if v.fract() == 0.0 && (0.0..1e15).contains(&v) {
                 Ok(v as u64)
             } else {
                 Err(corrupt(format!("{key} = {value} is not a cell count")))

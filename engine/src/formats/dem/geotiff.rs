@@ -166,7 +166,7 @@ fn to_heights(
         samples: usize,
         f: impl Fn(T) -> f32,
     ) -> Result<Vec<f32>, InputError> {
-        let needed = cells.checked_mul(samples).unwrap_or(usize::MAX);
+        let needed = cells.saturating_mul(samples);
         if v.len() < needed {
             return Err(corrupt(format!(
                 "decoded {} samples, expected {needed}",

@@ -176,7 +176,7 @@ fn check_options(opts: &DemOptions) -> Result<(), InputError> {
 
 /// Refuse `width × height` grids over the limit or with a zero side, before allocating.
 pub(crate) fn check_cells(width: u64, height: u64, max_cells: u64) -> Result<(), InputError> {
-    let cells = width.checked_mul(height).unwrap_or(u64::MAX);
+    let cells = width.saturating_mul(height);
     if cells > max_cells {
         return Err(InputError::TooLarge {
             what: "DEM cells",
