@@ -1047,3 +1047,55 @@ fn wgs84_metres_per_degree() {
     let (lat89, _) = metres_per_degree(89.9);
     assert!(close(lat89, 111_693.9, 1.0), "{lat89}");
 }
+
+#[test]
+fn geotiff_horizontal_predictor() {
+    // int16 strips with the horizontal-differencing predictor (TIFF Predictor = 2), as GDAL
+    // writes with PREDICTOR=2.
+    let (w, h) = (9usize, 5usize);
+    let vals = grid_values(w, h);
+    let mut strip = Vec::new();
+    for r in 0..h {
+        let mut prev = 0i16;
+        for c in 0..w {
+            let v = vals[r * w + c] as i16;
+            strip.extend(v.wrapping_sub(prev).to_le_bytes());
+            prev = v;
+        }
+    }
+    let entries = vec![
+        long(256, w as u32),
+        long(257, h as u32),
+        short(258, 16),
+        short(259, 1),
+        short(262, 1),
+        short(277, 1),
+        long(278, h as u32),
+        short(317, 2),
+        short(339, 2),
+        doubles(33550, &[1.0 / 1200.0, 1.0 / 1200.0, 0.0]),
+        doubles(33922, &[0.0, 0.0, 0.0, 10.0, 47.0, 0.0]),
+        shorts(
+            34735,
+            &[1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326],
+        ),
+    ];
+    check_generated(&raw_tiff(entries, &[strip], 273), w, h, false);
+}
+
+#[test]
+fn max_cells_applies_to_every_real_format() {
+    let small = DemOptions {
+        max_cells: 10_000,
+        ..opts()
+    };
+    for path in [
+        dem_path!("tanzawa_sagami_aster_gdem2.tif"),
+        dem_path!("olinda_dem_utm25s.tif"),
+        dem_path!("colorado_front_range_srtmgl3.asc"),
+    ] {
+        let bytes = std::fs::read(path).unwrap();
+        let e = decode_dem(&bytes, path.rsplit('/').next(), &small).unwrap_err();
+        assert!(matches!(e, InputError::TooLarge { .. }), "{path}: {e:?}");
+    }
+}

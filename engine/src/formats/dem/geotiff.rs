@@ -41,11 +41,9 @@ fn map_tiff_err(e: tiff::TiffError) -> InputError {
         tiff::TiffError::UnsupportedError(u) => {
             InputError::UnsupportedFormat(format!("TIFF variant not supported: {u}"))
         }
-        tiff::TiffError::LimitsExceeded => InputError::TooLarge {
-            what: "TIFF decoding buffer",
-            actual: 0,
-            max: 0,
-        },
+        tiff::TiffError::LimitsExceeded => {
+            corrupt("a tag, strip or tile is larger than the image it belongs to allows")
+        }
         other => corrupt(other),
     }
 }
@@ -54,9 +52,9 @@ pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError>
     let mut limits = Limits::default();
     // Room for max_cells samples of the widest type (f64/i64), so a legitimately large DEM under
     // the cell limit decodes, and nothing larger is ever allocated by the decoder.
-    limits.decoding_buffer_size =
-        usize::try_from(opts.max_cells.saturating_mul(8)).unwrap_or(usize::MAX);
-    limits.intermediate_buffer_size = limits.decoding_buffer_size;
+    let limit = usize::try_from(opts.max_cells.saturating_mul(8)).unwrap_or(usize::MAX);
+    limits.decoding_buffer_size = limit;
+    limits.intermediate_buffer_size = limit;
     let mut dec = Decoder::new(Cursor::new(bytes))
         .map_err(map_tiff_err)?
         .with_limits(limits);
@@ -64,11 +62,11 @@ pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError>
     check_cells(u64::from(w), u64::from(h), opts.max_cells)?;
     let (width, height) = (w as usize, h as usize);
 
-    let samples = match dec.colortype().map_err(map_tiff_err)? {
-        ColorType::Gray(_) => 1,
-        ColorType::GrayA(_) => 2,
-        ColorType::RGB(_) => 3,
-        ColorType::RGBA(_) | ColorType::CMYK(_) => 4,
+    let (samples, bits) = match dec.colortype().map_err(map_tiff_err)? {
+        ColorType::Gray(b) => (1, b),
+        ColorType::GrayA(b) => (2, b),
+        ColorType::RGB(b) => (3, b),
+        ColorType::RGBA(b) | ColorType::CMYK(b) => (4, b),
         other => {
             return Err(InputError::UnsupportedFormat(format!(
                 "TIFF colour type {other:?} is not an elevation band"
@@ -82,6 +80,15 @@ pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError>
         None => None,
     };
 
+    // The whole decoded image (all bands) must fit in the decoder's buffer limit.
+    let decoded_bytes = u64::from(w) * u64::from(h) * samples as u64 * u64::from(bits).div_ceil(8);
+    if decoded_bytes > limit as u64 {
+        return Err(InputError::TooLarge {
+            what: "decoded TIFF bytes (all bands)",
+            actual: decoded_bytes,
+            max: limit as u64,
+        });
+    }
     let image = dec.read_image().map_err(map_tiff_err)?;
     let heights = to_heights(image, width * height, samples, nodata)?;
 
