@@ -9,6 +9,7 @@ pub mod error;
 pub mod formats;
 pub mod geom;
 pub mod output;
+pub mod params;
 pub mod pipeline;
 pub mod render;
 pub mod snow_terrain;

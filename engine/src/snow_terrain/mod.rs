@@ -5,14 +5,14 @@
 //! composed by [`descriptor`]; then [`colour`] (§4.2) and [`run`] (rendering and outputs).
 
 pub mod altitude;
-// LANDING pub mod colour;
+pub mod colour;
 pub mod descriptor;
-// LANDING pub mod params;
-// LANDING pub mod run;
+pub mod params;
+pub mod run;
 pub mod smooth;
 pub mod sun;
 pub mod transfer;
 pub mod tsa;
 
-// LANDING pub use params::Params;
-// LANDING pub use run::run;
+pub use params::Params;
+pub use run::run;

@@ -1,0 +1,111 @@
+//! Parameter pieces every pipeline shares (SPEC §5): the camera, range checks, colours.
+
+use serde::{Deserialize, Serialize};
+
+use crate::ParamError;
+
+/// How the camera is placed (SPEC §5, shared by every pipeline).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum CameraSpec {
+    /// Orbit around the DEM's centre.
+    Orbit {
+        /// Compass direction from the centre to the camera, degrees: 0 = north (looking south),
+        /// 180 = south (looking north). Default 200.
+        azimuth_deg: f64,
+        /// Angle above the horizon, degrees, -89–89. Default 30.
+        elevation_deg: f64,
+        /// Distance from the centre in metres; `null` frames the whole DEM. Default null.
+        distance: Option<f64>,
+        /// Vertical field of view, degrees, 1–150. Default 40.
+        fov_deg: f64,
+    },
+    /// Explicit eye and target in the DEM's world frame (metres; X east, Y up, Z south, origin at
+    /// the grid's horizontal centre and elevation 0).
+    LookAt {
+        eye: [f64; 3],
+        target: [f64; 3],
+        fov_deg: f64,
+    },
+}
+
+/// Wire form of the camera: either orbit fields or eye/target.
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WireCamera {
+    pub azimuth_deg: Option<f64>,
+    pub elevation_deg: Option<f64>,
+    pub distance: Option<f64>,
+    pub fov_deg: Option<f64>,
+    pub eye: Option<[f64; 3]>,
+    pub target: Option<[f64; 3]>,
+}
+
+pub fn range<T: PartialOrd + std::fmt::Display + Copy>(
+    field: &str,
+    v: Option<T>,
+    default: T,
+    lo: T,
+    hi: T,
+) -> Result<T, ParamError> {
+    let x = v.unwrap_or(default);
+    // `!(lo <= x && x <= hi)` also rejects NaN.
+    if !(lo <= x && x <= hi) {
+        return Err(ParamError::new(
+            field,
+            format!("must be between {lo} and {hi}, got {x}"),
+        ));
+    }
+    Ok(x)
+}
+
+/// Parses `#rrggbb` into sRGB bytes.
+pub fn parse_hex_color(field: &str, s: &str) -> Result<[u8; 3], ParamError> {
+    let err = || ParamError::new(field, format!("expected a colour like \"#a0b1c2\", got {s:?}"));
+    let h = s.strip_prefix('#').ok_or_else(err)?;
+    if h.len() != 6 || !h.is_ascii() {
+        return Err(err());
+    }
+    let byte = |i: usize| u8::from_str_radix(&h[i..i + 2], 16).map_err(|_| err());
+    Ok([byte(0)?, byte(2)?, byte(4)?])
+}
+
+fn finite3(field: &str, v: [f64; 3]) -> Result<[f64; 3], ParamError> {
+    if v.iter().all(|x| x.is_finite() && x.abs() < 1e9) {
+        Ok(v)
+    } else {
+        Err(ParamError::new(field, "must be three finite numbers"))
+    }
+}
+
+/// Validates the camera: orbit fields or eye/target, not a mix.
+pub fn camera_spec(c: WireCamera) -> Result<CameraSpec, ParamError> {
+    let fov_deg = range("camera.fov_deg", c.fov_deg, 40.0, 1.0, 150.0)?;
+    match (c.eye, c.target) {
+        (Some(eye), Some(target)) => {
+            if c.azimuth_deg.is_some() || c.elevation_deg.is_some() || c.distance.is_some() {
+                return Err(ParamError::new(
+                    "camera",
+                    "give either eye/target or azimuth_deg/elevation_deg/distance, not both",
+                ));
+            }
+            let eye = finite3("camera.eye", eye)?;
+            let target = finite3("camera.target", target)?;
+            if eye == target {
+                return Err(ParamError::new("camera.target", "must differ from camera.eye"));
+            }
+            Ok(CameraSpec::LookAt { eye, target, fov_deg })
+        }
+        (Some(_), None) => Err(ParamError::new("camera.target", "required with camera.eye")),
+        (None, Some(_)) => Err(ParamError::new("camera.eye", "required with camera.target")),
+        (None, None) => Ok(CameraSpec::Orbit {
+            azimuth_deg: range("camera.azimuth_deg", c.azimuth_deg, 200.0, -360.0, 360.0)?,
+            elevation_deg: range("camera.elevation_deg", c.elevation_deg, 30.0, -89.0, 89.0)?,
+            distance: match c.distance {
+                Some(d) => Some(range("camera.distance", Some(d), 1.0, 1e-3, 1e9)?),
+                None => None,
+            },
+            fov_deg,
+        }),
+    }
+}

@@ -1,0 +1,41 @@
+//! Step 7, colour (paper §4.2): colour = t·rock + (1 − t)·snow per grid point, computed from the
+//! descriptor of the smoothed field but drawn on the original heights by the renderer.
+//!
+//! The blend is done in linear RGB (the paper does not say; blending sRGB bytes darkens the
+//! mid-tones of a snow/rock transition). The orthophoto replacement of the rock colour (the
+//! paper's future work, SPEC §1 step 7) is not implemented yet.
+
+use rayon::prelude::*;
+
+use crate::render::image::srgb8_to_linear;
+
+/// Linear albedo per grid point. `t` is the descriptor (NaN where nodata, coloured as rock).
+/// Allocates the output.
+pub fn albedo(t: &[f32], rock_srgb: [u8; 3], snow_srgb: [u8; 3]) -> Vec<[f32; 3]> {
+    let rock = rock_srgb.map(srgb8_to_linear);
+    let snow = snow_srgb.map(srgb8_to_linear);
+    t.par_iter()
+        .map(|&t| {
+            let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
+            [
+                t * rock[0] + (1.0 - t) * snow[0],
+                t * rock[1] + (1.0 - t) * snow[1],
+                t * rock[2] + (1.0 - t) * snow[2],
+            ]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blend_ends_are_the_two_colours() {
+        let a = albedo(&[0.0, 1.0, 0.5], [10, 20, 30], [250, 250, 250]);
+        assert_eq!(a[0], [250u8; 3].map(srgb8_to_linear));
+        assert_eq!(a[1], [10u8, 20, 30].map(srgb8_to_linear));
+        let mid = (srgb8_to_linear(10) + srgb8_to_linear(250)) / 2.0;
+        assert!((a[2][0] - mid).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,230 @@
+//! Parameters of the `snow-terrain` pipeline: the wire form (JSON, unknown names rejected) and the
+//! validated form the pipeline runs on. Names follow SPEC §1; every field says its unit, range and
+//! default.
+
+use serde::{Deserialize, Serialize};
+
+use super::descriptor::DescriptorParams;
+use crate::params::{camera_spec, parse_hex_color, range, CameraSpec, WireCamera};
+use crate::pipeline::Limits;
+use crate::ParamError;
+
+/// A parameter sweep: the same DEM rendered once per value of one parameter, laid out as a
+/// labelled contact sheet (`sweep.png`), like the paper's Figs. 11–12.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Sweep {
+    /// Name of a numeric parameter (`probe_radius`, `b`, `smooth_radius`, …).
+    pub param: String,
+    /// 2–12 values.
+    pub values: Vec<f64>,
+}
+
+/// Wire parameters (all optional; unknown names are rejected).
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WireParams {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub camera: Option<WireCamera>,
+    pub seed: Option<u64>,
+    pub smooth_radius: Option<usize>,
+    pub smooth_iterations: Option<usize>,
+    pub tsa_window: Option<usize>,
+    pub tsa_max: Option<f32>,
+    pub probe_radius: Option<f32>,
+    pub b: Option<f32>,
+    pub vertical_exaggeration: Option<f32>,
+    pub snowline: Option<f32>,
+    pub altitude_exponent: Option<f32>,
+    pub descriptor_smooth_iterations: Option<usize>,
+    pub sun_azimuth_deg: Option<f32>,
+    pub sun_spread_deg: Option<f32>,
+    pub sun_min_slope_deg: Option<f32>,
+    pub sun_elevation_deg: Option<f64>,
+    pub rock_color: Option<String>,
+    pub snow_color: Option<String>,
+    pub shading: Option<bool>,
+    pub shadows: Option<bool>,
+    pub ambient: Option<f32>,
+    pub haze: Option<f32>,
+    pub samples: Option<u32>,
+    pub mesh_max_vertices: Option<usize>,
+    pub cell_size: Option<f64>,
+    pub vertical_scale: Option<f64>,
+    pub sweep: Option<Sweep>,
+}
+
+/// Validated parameters of one `snow-terrain` run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Params {
+    /// Output image width, pixels, 16–8192. Default 900 (the paper's figures).
+    pub width: u32,
+    /// Output image height, pixels, 16–8192. Default 600.
+    pub height: u32,
+    pub camera: CameraSpec,
+    /// Accepted for API uniformity; this pipeline has no randomness. Default 0.
+    pub seed: u64,
+    /// Descriptor stages 1–6 (see [`DescriptorParams`]).
+    #[serde(flatten)]
+    pub descriptor: DescriptorParams,
+    /// Sun elevation above the horizon for shading and shadows, degrees, 1–90. The sun's azimuth
+    /// is `sun_azimuth_deg`, the same as the descriptor's sun correction. Default 35.
+    pub sun_elevation_deg: f64,
+    /// Bare-rock colour, sRGB hex. Default `#6e665c`.
+    pub rock_color: String,
+    /// Snow colour, sRGB hex. Default `#f4f7fb`.
+    pub snow_color: String,
+    /// Lambert shading from the sun plus sky ambient; false draws flat colours like the paper.
+    /// Default true.
+    pub shading: bool,
+    /// Cast shadows. Default true.
+    pub shadows: bool,
+    /// Sky ambient, fraction of albedo on flat ground, 0–1. Default 0.35.
+    pub ambient: f32,
+    /// Aerial perspective strength (SPEC §1 step 8), 0–1. Default 0.5.
+    pub haze: f32,
+    /// Anti-aliasing rays per pixel, 1–16. Default 4.
+    pub samples: u32,
+    /// Vertex budget of `terrain.glb`, 4–4194304. Default 262144.
+    pub mesh_max_vertices: usize,
+    /// Metres per cell for inputs without georeferencing (16-bit PNG, `.npy`). Default null.
+    pub cell_size: Option<f64>,
+    /// Metres per stored unit for 16-bit PNG and integer `.npy`. Default null (= 1).
+    pub vertical_scale: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sweep: Option<Sweep>,
+    /// One validated parameter set per sweep value (derived from `sweep`).
+    #[serde(skip)]
+    pub sweep_runs: Vec<Params>,
+}
+
+/// Parameters a sweep may vary.
+pub const SWEEPABLE: &[&str] = &[
+    "probe_radius",
+    "b",
+    "smooth_radius",
+    "smooth_iterations",
+    "tsa_window",
+    "vertical_exaggeration",
+    "snowline",
+    "altitude_exponent",
+    "descriptor_smooth_iterations",
+    "sun_azimuth_deg",
+    "sun_spread_deg",
+    "sun_min_slope_deg",
+    "haze",
+];
+
+impl Params {
+    /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
+    /// the field.
+    pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
+        let wire: WireParams = crate::pipeline::deserialize_params(v)?;
+        let mut p = Self::from_wire(&wire, limits)?;
+        if let Some(sweep) = &wire.sweep {
+            if !SWEEPABLE.contains(&sweep.param.as_str()) {
+                return Err(ParamError::new(
+                    "sweep.param",
+                    format!("cannot sweep {:?}; one of: {}", sweep.param, SWEEPABLE.join(", ")),
+                ));
+            }
+            if !(2..=12).contains(&sweep.values.len()) {
+                return Err(ParamError::new("sweep.values", "give 2 to 12 values"));
+            }
+            let mut runs = Vec::with_capacity(sweep.values.len());
+            for (i, value) in sweep.values.iter().enumerate() {
+                let mut obj = v.clone();
+                if let Some(m) = obj.as_object_mut() {
+                    m.remove("sweep");
+                    m.insert(sweep.param.clone(), serde_json::json!(value));
+                }
+                let w: WireParams = crate::pipeline::deserialize_params(&obj).map_err(|e| {
+                    ParamError::new(format!("sweep.values[{i}]"), e.detail)
+                })?;
+                runs.push(Self::from_wire(&w, limits).map_err(|e| {
+                    ParamError::new(format!("sweep.values[{i}]"), e.to_string())
+                })?);
+            }
+            p.sweep = Some(sweep.clone());
+            p.sweep_runs = runs;
+        }
+        Ok(p)
+    }
+
+    fn from_wire(w: &WireParams, limits: &Limits) -> Result<Self, ParamError> {
+        let d = DescriptorParams::default();
+        let width = range("width", w.width, 900, 16, 8192)?;
+        let height = range("height", w.height, 600, 16, 8192)?;
+        if u64::from(width) * u64::from(height) > limits.max_output_pixels {
+            return Err(ParamError::new(
+                "width",
+                format!(
+                    "{width}×{height} exceeds the output limit of {} pixels",
+                    limits.max_output_pixels
+                ),
+            ));
+        }
+        let camera = camera_spec(w.camera.clone().unwrap_or_default())?;
+        let descriptor = DescriptorParams {
+            smooth_radius: range("smooth_radius", w.smooth_radius, d.smooth_radius, 1, 16)?,
+            smooth_iterations: range("smooth_iterations", w.smooth_iterations, d.smooth_iterations, 0, 50)?,
+            tsa_window: range("tsa_window", w.tsa_window, d.tsa_window, 1, 16)?,
+            tsa_max: range("tsa_max", w.tsa_max, d.tsa_max, 1.0, 1.0e7)?,
+            probe_radius: range("probe_radius", w.probe_radius, d.probe_radius, 0.001, 1.0e7)?,
+            b: range("b", w.b, d.b, 0.0, 1.0)?,
+            vertical_exaggeration: range(
+                "vertical_exaggeration",
+                w.vertical_exaggeration,
+                d.vertical_exaggeration,
+                0.01,
+                100.0,
+            )?,
+            snowline: range("snowline", w.snowline, d.snowline, -500.0, 9000.0)?,
+            altitude_exponent: range("altitude_exponent", w.altitude_exponent, d.altitude_exponent, 0.0, 10.0)?,
+            descriptor_smooth_iterations: range(
+                "descriptor_smooth_iterations",
+                w.descriptor_smooth_iterations,
+                d.descriptor_smooth_iterations,
+                0,
+                50,
+            )?,
+            sun_azimuth_deg: range("sun_azimuth_deg", w.sun_azimuth_deg, d.sun_azimuth_deg, 0.0, 360.0)?,
+            sun_spread_deg: range("sun_spread_deg", w.sun_spread_deg, d.sun_spread_deg, 0.0, 90.0)?,
+            sun_min_slope_deg: range("sun_min_slope_deg", w.sun_min_slope_deg, d.sun_min_slope_deg, 0.0, 89.0)?,
+        };
+        let rock_color = w.rock_color.clone().unwrap_or_else(|| "#6e665c".into());
+        let snow_color = w.snow_color.clone().unwrap_or_else(|| "#f4f7fb".into());
+        parse_hex_color("rock_color", &rock_color)?;
+        parse_hex_color("snow_color", &snow_color)?;
+        let cell_size = match w.cell_size {
+            Some(c) => Some(range("cell_size", Some(c), 1.0, 1e-6, 1e6)?),
+            None => None,
+        };
+        let vertical_scale = match w.vertical_scale {
+            Some(c) => Some(range("vertical_scale", Some(c), 1.0, 1e-9, 1e6)?),
+            None => None,
+        };
+        Ok(Params {
+            width,
+            height,
+            camera,
+            seed: w.seed.unwrap_or(0),
+            descriptor,
+            sun_elevation_deg: range("sun_elevation_deg", w.sun_elevation_deg, 35.0, 1.0, 90.0)?,
+            rock_color,
+            snow_color,
+            shading: w.shading.unwrap_or(true),
+            shadows: w.shadows.unwrap_or(true),
+            ambient: range("ambient", w.ambient, 0.35, 0.0, 1.0)?,
+            haze: range("haze", w.haze, 0.5, 0.0, 1.0)?,
+            samples: range("samples", w.samples, 4, 1, 16)?,
+            mesh_max_vertices: range("mesh_max_vertices", w.mesh_max_vertices, 262_144, 4, 4_194_304)?,
+            cell_size,
+            vertical_scale,
+            sweep: None,
+            sweep_runs: Vec::new(),
+        })
+    }
+}
+

@@ -1,0 +1,122 @@
+//! The HTTP API: routes, shared state and the request-metrics middleware. Handlers validate and
+//! translate; the maths happens in the engine behind the job system.
+
+mod assets;
+mod dto;
+mod jobs;
+mod submit;
+mod system;
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
+use axum::middleware::{self, Next};
+use axum::response::Response;
+use axum::routing::{get, post};
+use axum::Router;
+use tokio_util::sync::CancellationToken;
+use tower_http::trace::TraceLayer;
+
+use crate::config::Config;
+use crate::error::ApiError;
+use crate::jobs::Jobs;
+use crate::metrics::Metrics;
+
+/// Everything a handler needs; cheap to clone.
+#[derive(Clone)]
+pub struct AppState {
+    pub cfg: Arc<Config>,
+    pub jobs: Jobs,
+    pub metrics: Metrics,
+    /// Cancelled when the server begins shutting down (ends SSE streams, fails readiness).
+    pub shutdown: CancellationToken,
+}
+
+/// Every route the server serves besides the per-pipeline submit routes (`POST /v1/{pipeline}`),
+/// as (method, path) in OpenAPI syntax. A test holds this list, the router and `openapi.yaml`
+/// to each other.
+pub const ROUTES: &[(&str, &str)] = &[
+    ("get", "/healthz"),
+    ("get", "/readyz"),
+    ("get", "/metrics"),
+    ("get", "/openapi.yaml"),
+    ("post", "/v1/assets"),
+    ("get", "/v1/assets/{id}"),
+    ("get", "/v1/jobs"),
+    ("get", "/v1/jobs/{id}"),
+    ("delete", "/v1/jobs/{id}"),
+    ("get", "/v1/jobs/{id}/events"),
+    ("get", "/v1/jobs/{id}/outputs/{name}"),
+];
+
+/// The application router (no socket: tests drive it with `tower::ServiceExt::oneshot`).
+pub fn app(state: AppState) -> Router {
+    let mut router = Router::new()
+        .route("/healthz", get(system::healthz))
+        .route("/readyz", get(system::readyz))
+        .route("/metrics", get(system::metrics))
+        .route("/openapi.yaml", get(system::openapi))
+        .route("/v1/assets", post(assets::upload))
+        .route("/v1/assets/{id}", get(assets::get))
+        .route("/v1/jobs", get(jobs::list))
+        .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
+        .route("/v1/jobs/{id}/events", get(jobs::events))
+        .route("/v1/jobs/{id}/outputs/{name}", get(jobs::output));
+    for name in state.jobs.pipelines().names() {
+        router = router.route(
+            &format!("/v1/{name}"),
+            post(move |st: State<AppState>, req: Request| submit::submit(name, st, req)),
+        );
+    }
+    router
+        .fallback(fallback)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
+        .layer(middleware::from_fn_with_state(state.clone(), track))
+        .layer(TraceLayer::new_for_http())
+        .with_state(state)
+}
+
+async fn fallback(State(st): State<AppState>, req: Request) -> ApiError {
+    let path = req.uri().path();
+    if let Some(name) = path.strip_prefix("/v1/").filter(|p| !p.contains('/')) {
+        return ApiError::NotFound(format!(
+            "no pipeline named {name:?}; known pipelines: {}",
+            st.jobs.pipelines().names().join(", ")
+        ));
+    }
+    ApiError::NotFound(format!("no route for {path}"))
+}
+
+async fn method_not_allowed(req: Request) -> Response {
+    use axum::response::IntoResponse;
+    let mut resp = ApiError::NotFound(format!(
+        "{} is not allowed on {}",
+        req.method(),
+        req.uri().path()
+    ))
+    .into_response();
+    *resp.status_mut() = axum::http::StatusCode::METHOD_NOT_ALLOWED;
+    resp
+}
+
+/// Counts requests and their latency by matched route.
+async fn track(State(st): State<AppState>, req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
+    let method = req.method().as_str().to_string();
+    let t0 = Instant::now();
+    let resp = next.run(req).await;
+    st.metrics
+        .http_requests
+        .with_label_values(&[route.as_str(), method.as_str(), resp.status().as_str()])
+        .inc();
+    st.metrics
+        .http_duration
+        .with_label_values(&[route.as_str(), method.as_str()])
+        .observe(t0.elapsed().as_secs_f64());
+    resp
+}

@@ -1,0 +1,251 @@
+//! `POST /v1/{pipeline}`: validate, store the input as an asset, reuse an identical request's
+//! result, or queue a new job.
+//!
+//! Two body forms:
+//! - `multipart/form-data` with a `params` part (JSON; optional, `{}` when absent) and the input
+//!   part named for the pipeline (`dem`, `mesh`, `volume`), whose file name guides format detection;
+//! - `application/json`: `{"asset": "<sha256>", "params": {…}}` naming an uploaded asset.
+
+use axum::extract::{FromRequest, Multipart, Request, State};
+use axum::http::header;
+use axum::response::Response;
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+use super::jobs::{job_response, prefer_wait};
+use super::AppState;
+use crate::error::ApiError;
+use crate::jobs::{InputRef, SubmitError, Submitted};
+use crate::store::assets::AssetRecord;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonSubmit {
+    asset: String,
+    #[serde(default = "empty_object")]
+    params: serde_json::Value,
+}
+
+fn empty_object() -> serde_json::Value {
+    serde_json::Value::Object(Default::default())
+}
+
+/// The input as received: new bytes to store, or an existing asset.
+enum Input {
+    Upload {
+        bytes: bytes::Bytes,
+        filename: Option<String>,
+    },
+    Asset(AssetRecord),
+}
+
+/// The request key: identical pipeline, input bytes and resolved params give the same key.
+pub(crate) fn request_key(pipeline: &str, asset: &str, params: &serde_json::Value) -> String {
+    let mut h = Sha256::new();
+    h.update(pipeline.as_bytes());
+    h.update(b"\n");
+    h.update(asset.as_bytes());
+    h.update(b"\n");
+    // serde_json's default map is a BTreeMap, so this serialisation has sorted keys: canonical.
+    h.update(params.to_string().as_bytes());
+    hex::encode(h.finalize())
+}
+
+fn blocking_err(e: tokio::task::JoinError) -> ApiError {
+    ApiError::internal(e)
+}
+
+pub async fn submit(
+    pipeline: &'static str,
+    State(st): State<AppState>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    if !st.jobs.accepting() {
+        return Err(ApiError::Unavailable("the service is shutting down".into()));
+    }
+    let part = st
+        .jobs
+        .pipelines()
+        .input_part(pipeline)
+        .ok_or_else(|| ApiError::NotFound(format!("no pipeline {pipeline}")))?;
+    let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
+    let ctype = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let (raw_params, input) = if ctype.starts_with("multipart/form-data") {
+        read_multipart(&st, req, part).await?
+    } else if ctype.starts_with("application/json") {
+        read_json(&st, req).await?
+    } else {
+        return Err(ApiError::UnsupportedMediaType(format!(
+            "send multipart/form-data (a `params` part and a `{part}` file part) or application/json \
+             naming an uploaded asset; got {:?}",
+            if ctype.is_empty() { "no Content-Type" } else { ctype.as_str() }
+        )));
+    };
+
+    let pipelines = st.jobs.pipelines().clone();
+    let params = pipelines.params(pipeline, &raw_params)?;
+
+    // Store the upload (content-addressed) so a retry or a later job can name it.
+    let store = st.jobs.store().clone();
+    let (asset, bytes) = match input {
+        Input::Upload { bytes, filename } => {
+            let b = bytes.clone();
+            let (rec, _) = tokio::task::spawn_blocking(move || store.put_asset(&b, filename.as_deref()))
+                .await
+                .map_err(blocking_err)??;
+            (rec, Some(bytes))
+        }
+        Input::Asset(rec) => (rec, None),
+    };
+    let key = request_key(pipeline, &asset.id, &params);
+
+    // An identical request already queued, running or done: no decode, no new job.
+    if let Some(rec) = st.jobs.find_by_key(&key) {
+        return respond(&st, rec, wait).await;
+    }
+
+    // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed job.
+    let bytes = match bytes {
+        Some(b) => b,
+        None => {
+            let store = st.jobs.store().clone();
+            let id = asset.id.clone();
+            bytes::Bytes::from(
+                tokio::task::spawn_blocking(move || store.read_blob(&id))
+                    .await
+                    .map_err(blocking_err)??,
+            )
+        }
+    };
+    {
+        let p = params.clone();
+        let filename = asset.filename.clone();
+        let pipelines = pipelines.clone();
+        tokio::task::spawn_blocking(move || {
+            pipelines.check_input(pipeline, &p, &bytes, filename.as_deref())
+        })
+        .await
+        .map_err(blocking_err)?
+        .map_err(|e| ApiError::from_input(e, part))?;
+    }
+    {
+        let store = st.jobs.store().clone();
+        let a = asset.clone();
+        tokio::task::spawn_blocking(move || store.touch_asset(&a))
+            .await
+            .map_err(blocking_err)??;
+    }
+
+    let input = InputRef {
+        asset: asset.id,
+        filename: asset.filename,
+    };
+    match st.jobs.submit(pipeline, input, params, key) {
+        Ok(Submitted::Queued(rec) | Submitted::Reused(rec)) => respond(&st, rec, wait).await,
+        Err(SubmitError::QueueFull { capacity }) => Err(ApiError::QueueFull {
+            detail: format!("the queue is full ({capacity} jobs waiting); retry later"),
+            retry_after: 5,
+        }),
+        Err(SubmitError::ShuttingDown) => {
+            Err(ApiError::Unavailable("the service is shutting down".into()))
+        }
+        Err(SubmitError::Store(e)) => Err(e.into()),
+    }
+}
+
+async fn respond(
+    st: &AppState,
+    rec: crate::jobs::JobRecord,
+    wait: Option<std::time::Duration>,
+) -> Result<Response, ApiError> {
+    let rec = match wait {
+        Some(w) if !rec.status.is_terminal() => st.jobs.wait(&rec.id, w).await.unwrap_or(rec),
+        _ => rec,
+    };
+    Ok(job_response(rec, wait))
+}
+
+fn multipart_err(e: axum::extract::multipart::MultipartError) -> ApiError {
+    if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::PayloadTooLarge(format!("request body too large: {}", e.body_text()))
+    } else {
+        ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
+    }
+}
+
+async fn read_multipart(
+    st: &AppState,
+    req: Request,
+    part: &'static str,
+) -> Result<(serde_json::Value, Input), ApiError> {
+    let mut mp = Multipart::from_request(req, st)
+        .await
+        .map_err(|e| ApiError::bad_request(format!("malformed multipart body: {}", e.body_text())))?;
+    let mut params = None;
+    let mut input = None;
+    while let Some(field) = mp.next_field().await.map_err(multipart_err)? {
+        let name = field.name().unwrap_or("").to_string();
+        if name == "params" {
+            let text = field.bytes().await.map_err(multipart_err)?;
+            let v: serde_json::Value = serde_json::from_slice(&text).map_err(|e| {
+                ApiError::bad_field("params", format!("the params part is not valid JSON: {e}"))
+            })?;
+            if !v.is_object() {
+                return Err(ApiError::bad_field("params", "params must be a JSON object"));
+            }
+            params = Some(v);
+        } else if name == part {
+            let filename = field.file_name().map(sanitize_filename);
+            let bytes = field.bytes().await.map_err(multipart_err)?;
+            if bytes.is_empty() {
+                return Err(ApiError::bad_field(part, format!("the {part} part is empty")));
+            }
+            input = Some(Input::Upload { bytes, filename });
+        } else {
+            return Err(ApiError::bad_field(
+                name.clone(),
+                format!("unexpected part {name:?}; expected `params` and `{part}`"),
+            ));
+        }
+    }
+    let input = input.ok_or_else(|| {
+        ApiError::bad_field(part, format!("missing the `{part}` file part"))
+    })?;
+    Ok((params.unwrap_or_else(empty_object), input))
+}
+
+async fn read_json(st: &AppState, req: Request) -> Result<(serde_json::Value, Input), ApiError> {
+    let body = axum::body::to_bytes(req.into_body(), st.cfg.max_body_bytes)
+        .await
+        .map_err(|_| ApiError::PayloadTooLarge("request body too large".into()))?;
+    let j: JsonSubmit = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::bad_request(format!("invalid JSON body: {e}")))?;
+    if !j.params.is_object() {
+        return Err(ApiError::bad_field("params", "params must be a JSON object"));
+    }
+    let store = st.jobs.store().clone();
+    let id = j.asset.clone();
+    let rec = tokio::task::spawn_blocking(move || store.get_asset(&id))
+        .await
+        .map_err(blocking_err)?
+        .ok_or_else(|| ApiError::InvalidInput {
+            detail: format!("no asset {:?}; upload it with POST /v1/assets", j.asset),
+            field: Some("asset".into()),
+        })?;
+    Ok((j.params, Input::Asset(rec)))
+}
+
+/// Keeps only the last path component of a client-supplied file name (no traversal, no control
+/// characters), at most 255 bytes.
+pub(crate) fn sanitize_filename(name: &str) -> String {
+    let base = name.rsplit(['/', '\\']).next().unwrap_or("");
+    base.chars()
+        .filter(|c| !c.is_control() && *c != '"')
+        .take(255)
+        .collect()
+}

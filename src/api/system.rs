@@ -1,0 +1,54 @@
+//! Liveness, readiness, metrics and the API description.
+
+use axum::extract::State;
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde_json::json;
+
+use super::AppState;
+use crate::error::ApiError;
+
+/// The repository's `openapi.yaml`, served as is.
+pub const OPENAPI_YAML: &str = include_str!("../../openapi.yaml");
+
+/// `GET /healthz`: the process is up.
+pub async fn healthz() -> Json<serde_json::Value> {
+    Json(json!({ "status": "ok" }))
+}
+
+/// `GET /readyz`: ready to take jobs — not shutting down and the store is writable.
+pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
+    if st.shutdown.is_cancelled() || !st.jobs.accepting() {
+        return Err(ApiError::Unavailable("the service is shutting down".into()));
+    }
+    let store = st.jobs.store().clone();
+    let writable = tokio::task::spawn_blocking(move || store.probe())
+        .await
+        .unwrap_or(false);
+    if !writable {
+        return Err(ApiError::Unavailable("the data directory is not writable".into()));
+    }
+    let (queued, running) = st.jobs.load();
+    Ok(Json(json!({ "status": "ready", "queued": queued, "running": running })))
+}
+
+/// `GET /metrics`: Prometheus text exposition.
+pub async fn metrics(State(st): State<AppState>) -> Response {
+    (
+        StatusCode::OK,
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        st.metrics.render(),
+    )
+        .into_response()
+}
+
+/// `GET /openapi.yaml`.
+pub async fn openapi() -> Response {
+    (
+        StatusCode::OK,
+        [(header::CONTENT_TYPE, "application/yaml")],
+        OPENAPI_YAML,
+    )
+        .into_response()
+}

@@ -1,0 +1,228 @@
+//! One `Config` for the server, from (highest precedence first) command-line flags, `PHENOMENA_*`
+//! environment variables, an optional TOML file (`--config`), and defaults. Logged at start-up.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+/// Log output format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    Text,
+    Json,
+}
+
+/// Settings given on the command line, the environment or the config file. Every field is optional
+/// here; [`Config::resolve`] fills in the defaults.
+#[derive(Debug, Clone, Default, Deserialize, clap::Args)]
+#[serde(deny_unknown_fields)]
+pub struct ServeArgs {
+    /// TOML file with any of the settings below (snake_case keys).
+    #[arg(long, env = "PHENOMENA_CONFIG")]
+    #[serde(skip)]
+    pub config: Option<PathBuf>,
+    /// Address to listen on. Default 127.0.0.1:8080; use 0.0.0.0:8080 in containers.
+    #[arg(long, env = "PHENOMENA_BIND")]
+    pub bind: Option<SocketAddr>,
+    /// Directory for jobs, assets and outputs. Default ./phenomena-data.
+    #[arg(long, env = "PHENOMENA_DATA_DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Largest request body in bytes (uploads). Default 268435456 (256 MiB).
+    #[arg(long, env = "PHENOMENA_MAX_BODY_BYTES")]
+    pub max_body_bytes: Option<usize>,
+    /// Largest input grid in cells (DEM width × height). Default 67108864 (8192²).
+    #[arg(long, env = "PHENOMENA_MAX_INPUT_CELLS")]
+    pub max_input_cells: Option<u64>,
+    /// Largest output image in pixels (width × height). Default 33177600 (7680×4320).
+    #[arg(long, env = "PHENOMENA_MAX_OUTPUT_PIXELS")]
+    pub max_output_pixels: Option<u64>,
+    /// Jobs running at once. Default 1 (each job uses every core).
+    #[arg(long, env = "PHENOMENA_CONCURRENCY")]
+    pub concurrency: Option<usize>,
+    /// Jobs allowed to wait in the queue; beyond it submissions get 429. Default 64.
+    #[arg(long, env = "PHENOMENA_QUEUE_CAPACITY")]
+    pub queue_capacity: Option<usize>,
+    /// Per-job time limit in seconds. Default 600.
+    #[arg(long, env = "PHENOMENA_JOB_TIMEOUT_SECS")]
+    pub job_timeout_secs: Option<u64>,
+    /// Finished jobs, outputs and unused assets are kept this many seconds. Default 604800 (7 days).
+    #[arg(long, env = "PHENOMENA_RETENTION_SECS")]
+    pub retention_secs: Option<u64>,
+    /// Seconds between retention sweeps. Default 300.
+    #[arg(long, env = "PHENOMENA_SWEEP_INTERVAL_SECS")]
+    pub sweep_interval_secs: Option<u64>,
+    /// Pipeline threads (0 = one per core). Default 0.
+    #[arg(long, env = "PHENOMENA_THREADS")]
+    pub threads: Option<usize>,
+    /// Longest `Prefer: wait=N` honoured, in seconds. Default 60.
+    #[arg(long, env = "PHENOMENA_MAX_WAIT_SECS")]
+    pub max_wait_secs: Option<u64>,
+    /// Seconds running jobs get to finish on shutdown before they are re-queued. Default 30.
+    #[arg(long, env = "PHENOMENA_SHUTDOWN_GRACE_SECS")]
+    pub shutdown_grace_secs: Option<u64>,
+    /// Log format. Default text.
+    #[arg(long, env = "PHENOMENA_LOG_FORMAT", value_enum)]
+    pub log_format: Option<LogFormat>,
+}
+
+/// The resolved configuration.
+#[derive(Debug, Clone, Serialize)]
+pub struct Config {
+    pub bind: SocketAddr,
+    pub data_dir: PathBuf,
+    pub max_body_bytes: usize,
+    pub max_input_cells: u64,
+    pub max_output_pixels: u64,
+    pub concurrency: usize,
+    pub queue_capacity: usize,
+    pub job_timeout_secs: u64,
+    pub retention_secs: u64,
+    pub sweep_interval_secs: u64,
+    pub threads: usize,
+    pub max_wait_secs: u64,
+    pub shutdown_grace_secs: u64,
+    pub log_format: LogFormat,
+}
+
+/// Configuration errors (reported by `main`).
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config file {path}: {source}")]
+    Parse {
+        path: PathBuf,
+        source: toml::de::Error,
+    },
+    #[error("{0} must be at least 1")]
+    Zero(&'static str),
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            bind: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            data_dir: PathBuf::from("./phenomena-data"),
+            max_body_bytes: 256 << 20,
+            max_input_cells: 8192 * 8192,
+            max_output_pixels: 7680 * 4320,
+            concurrency: 1,
+            queue_capacity: 64,
+            job_timeout_secs: 600,
+            retention_secs: 7 * 24 * 3600,
+            sweep_interval_secs: 300,
+            threads: 0,
+            max_wait_secs: 60,
+            shutdown_grace_secs: 30,
+            log_format: LogFormat::Text,
+        }
+    }
+}
+
+impl Config {
+    /// Flags/env over the config file over defaults.
+    pub fn resolve(args: ServeArgs) -> Result<Self, ConfigError> {
+        let file = match &args.config {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                    path: path.clone(),
+                    source,
+                })?;
+                toml::from_str::<ServeArgs>(&text).map_err(|source| ConfigError::Parse {
+                    path: path.clone(),
+                    source,
+                })?
+            }
+            None => ServeArgs::default(),
+        };
+        let d = Config::default();
+        macro_rules! pick {
+            ($f:ident) => {
+                args.$f.or(file.$f).unwrap_or(d.$f)
+            };
+        }
+        let cfg = Config {
+            bind: pick!(bind),
+            data_dir: args.data_dir.clone().or(file.data_dir.clone()).unwrap_or(d.data_dir.clone()),
+            max_body_bytes: pick!(max_body_bytes),
+            max_input_cells: pick!(max_input_cells),
+            max_output_pixels: pick!(max_output_pixels),
+            concurrency: pick!(concurrency),
+            queue_capacity: pick!(queue_capacity),
+            job_timeout_secs: pick!(job_timeout_secs),
+            retention_secs: pick!(retention_secs),
+            sweep_interval_secs: pick!(sweep_interval_secs),
+            threads: pick!(threads),
+            max_wait_secs: pick!(max_wait_secs),
+            shutdown_grace_secs: pick!(shutdown_grace_secs),
+            log_format: pick!(log_format),
+        };
+        if cfg.concurrency == 0 {
+            return Err(ConfigError::Zero("concurrency"));
+        }
+        if cfg.sweep_interval_secs == 0 {
+            return Err(ConfigError::Zero("sweep_interval_secs"));
+        }
+        Ok(cfg)
+    }
+
+    pub fn jobs(&self) -> crate::jobs::JobsConfig {
+        crate::jobs::JobsConfig {
+            concurrency: self.concurrency,
+            queue_capacity: self.queue_capacity,
+            job_timeout: Duration::from_secs(self.job_timeout_secs),
+            retention: Duration::from_secs(self.retention_secs),
+            sweep_interval: Duration::from_secs(self.sweep_interval_secs),
+            threads: self.threads,
+        }
+    }
+
+    pub fn limits(&self) -> phenomena_engine::pipeline::Limits {
+        phenomena_engine::pipeline::Limits {
+            max_input_cells: self.max_input_cells,
+            max_output_pixels: self.max_output_pixels,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_win_over_file_over_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.toml");
+        std::fs::write(&path, "queue_capacity = 5\nconcurrency = 3\n").unwrap();
+        let args = ServeArgs {
+            config: Some(path),
+            concurrency: Some(2),
+            ..Default::default()
+        };
+        let c = Config::resolve(args).unwrap();
+        assert_eq!(c.concurrency, 2);
+        assert_eq!(c.queue_capacity, 5);
+        assert_eq!(c.job_timeout_secs, 600);
+    }
+
+    #[test]
+    fn unknown_file_keys_are_rejected() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.toml");
+        std::fs::write(&path, "queue_capasity = 5\n").unwrap();
+        let args = ServeArgs {
+            config: Some(path),
+            ..Default::default()
+        };
+        assert!(matches!(
+            Config::resolve(args),
+            Err(ConfigError::Parse { .. })
+        ));
+    }
+}

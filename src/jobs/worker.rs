@@ -1,0 +1,296 @@
+//! Workers (one tokio task per concurrent job) and the retention sweeper.
+//!
+//! A worker takes the next queued job, reads its input, runs the pipeline on the rayon pool (never
+//! on the async runtime), waits for it with the job's time limit, stores the outputs as blobs and
+//! records the final status. A panic inside a pipeline fails only that job.
+
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use phenomena_engine::Control;
+use tracing::Instrument;
+
+use super::{CancelReason, JobError, JobRecord, Jobs, Live, OutputRecord, StageTiming, Status};
+use crate::pipelines::RunError;
+
+/// The pipeline's view of its job: forwards progress to the watch channel, measures each stage's
+/// time, and reports cancellation.
+struct JobControl {
+    live: Arc<Live>,
+    stages: Mutex<StageClock>,
+}
+
+struct StageClock {
+    current: Option<(String, Instant)>,
+    done: Vec<StageTiming>,
+}
+
+impl StageClock {
+    fn close(&mut self) {
+        if let Some((name, t0)) = self.current.take() {
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            match self.done.iter_mut().find(|s| s.stage == name) {
+                Some(s) => s.ms += ms,
+                None => self.done.push(StageTiming { stage: name, ms }),
+            }
+        }
+    }
+}
+
+impl Control for JobControl {
+    fn progress(&self, stage: &str, fraction: f32) {
+        if let Ok(mut clock) = self.stages.lock() {
+            if clock.current.as_ref().is_none_or(|(s, _)| s != stage) {
+                clock.close();
+                clock.current = Some((stage.to_string(), Instant::now()));
+            }
+        }
+        let fraction = fraction.clamp(0.0, 1.0);
+        self.live.tx.send_if_modified(|s| {
+            // Publish stage changes and every half per cent of progress, not every row.
+            let changed =
+                s.stage.as_deref() != Some(stage) || (fraction - s.progress).abs() >= 0.005;
+            if changed {
+                s.progress = fraction;
+                if s.stage.as_deref() != Some(stage) {
+                    s.stage = Some(stage.to_string());
+                }
+            }
+            changed
+        });
+    }
+
+    fn is_canceled(&self) -> bool {
+        self.live.cancel.load(Ordering::Relaxed) != 0
+    }
+}
+
+fn failure(kind: &str, title: &str, detail: impl Into<String>) -> JobError {
+    JobError {
+        kind: format!("{}{kind}", crate::error::PROBLEM_BASE),
+        title: title.to_string(),
+        detail: detail.into(),
+    }
+}
+
+/// One worker: runs jobs until the system stops accepting work.
+pub(super) async fn run(jobs: Jobs, index: usize) {
+    loop {
+        if !jobs.accepting() {
+            return;
+        }
+        let notified = jobs.inner.work.notified();
+        match jobs.take_next() {
+            Ok(Some((rec, live))) => {
+                let span = tracing::info_span!("job", job = %rec.id, pipeline = %rec.pipeline, worker = index);
+                let id = rec.id.clone();
+                let done = execute(&jobs, rec, live).instrument(span).await;
+                if let Err(e) = jobs.finish(done) {
+                    tracing::error!(job = %id, error = %e, "could not persist a finished job");
+                }
+            }
+            Ok(None) => notified.await,
+            Err(e) => {
+                tracing::error!(error = %e, "could not start a job; retrying in 1 s");
+                tokio::time::sleep(Duration::from_secs(1)).await;
+            }
+        }
+    }
+}
+
+/// Runs one job to its final record.
+async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
+    let t0 = Instant::now();
+    tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
+    let store = jobs.store().clone();
+    let asset = rec.input.asset.clone();
+    let input = match tokio::task::spawn_blocking(move || store.read_blob(&asset)).await {
+        Ok(Ok(bytes)) => bytes,
+        Ok(Err(e)) => {
+            tracing::error!(job = %rec.id, error = %e, "input blob unreadable");
+            rec.status = Status::Failed;
+            rec.error = Some(failure("input-missing", "Input unavailable", "the job's input could not be read from the store"));
+            return rec;
+        }
+        Err(e) => {
+            tracing::error!(job = %rec.id, error = %e, "input read task failed");
+            rec.status = Status::Failed;
+            rec.error = Some(failure("internal", "Internal error", "the job could not be run"));
+            return rec;
+        }
+    };
+
+    let ctl = Arc::new(JobControl {
+        live: live.clone(),
+        stages: Mutex::new(StageClock {
+            current: None,
+            done: Vec::new(),
+        }),
+    });
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    {
+        let pipelines = jobs.pipelines().clone();
+        let ctl = ctl.clone();
+        let name = rec.pipeline.clone();
+        let params = rec.params.clone();
+        let filename = rec.input.filename.clone();
+        let job_id = rec.id.clone();
+        jobs.inner.pool.spawn(move || {
+            let span = tracing::info_span!("job", job = %job_id, pipeline = %name);
+            let _e = span.enter();
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                pipelines.run(&name, &params, &input, filename.as_deref(), ctl.as_ref())
+            }));
+            let _ = tx.send(result);
+        });
+    }
+    let timeout = jobs.inner.cfg.job_timeout;
+    let mut rx = rx;
+    let result = match tokio::time::timeout(timeout, &mut rx).await {
+        Ok(r) => r,
+        Err(_) => {
+            live.raise(CancelReason::Timeout);
+            rx.await
+        }
+    };
+    if let Ok(mut clock) = ctl.stages.lock() {
+        clock.close();
+        rec.timings = std::mem::take(&mut clock.done);
+    }
+    let total = t0.elapsed().as_secs_f64();
+    let metrics = &jobs.inner.metrics;
+    for s in &rec.timings {
+        metrics
+            .job_duration
+            .with_label_values(&[rec.pipeline.as_str(), s.stage.as_str()])
+            .observe(s.ms / 1e3);
+    }
+    metrics
+        .job_duration
+        .with_label_values(&[rec.pipeline.as_str(), "total"])
+        .observe(total);
+
+    match result {
+        Ok(Ok(Ok(outputs))) => {
+            let store = jobs.store().clone();
+            let stored = tokio::task::spawn_blocking(move || {
+                outputs
+                    .into_iter()
+                    .map(|o| {
+                        let sha = store.put_blob(&o.bytes)?;
+                        Ok(OutputRecord {
+                            name: o.name,
+                            media_type: o.media_type.to_string(),
+                            size: o.bytes.len() as u64,
+                            sha256: sha,
+                        })
+                    })
+                    .collect::<Result<Vec<_>, crate::store::StoreError>>()
+            })
+            .await;
+            match stored {
+                Ok(Ok(outs)) => {
+                    rec.outputs = outs;
+                    rec.status = Status::Succeeded;
+                    tracing::info!(job = %rec.id, seconds = total, "job succeeded");
+                }
+                Ok(Err(e)) => {
+                    tracing::error!(job = %rec.id, error = %e, "could not store outputs");
+                    rec.status = Status::Failed;
+                    rec.error = Some(failure("storage", "Storage unavailable", "the outputs could not be stored"));
+                }
+                Err(e) => {
+                    tracing::error!(job = %rec.id, error = %e, "output store task failed");
+                    rec.status = Status::Failed;
+                    rec.error = Some(failure("internal", "Internal error", "the job failed"));
+                }
+            }
+        }
+        Ok(Ok(Err(RunError::Canceled))) => match live.reason() {
+            CancelReason::Timeout => {
+                rec.status = Status::Failed;
+                rec.error = Some(failure(
+                    "time-limit",
+                    "Time limit exceeded",
+                    format!("the job ran longer than the limit of {} s", timeout.as_secs()),
+                ));
+                tracing::warn!(job = %rec.id, "job exceeded its time limit");
+            }
+            CancelReason::Shutdown => {
+                rec.status = Status::Queued;
+                rec.progress = 0.0;
+                rec.stage = None;
+                tracing::info!(job = %rec.id, "job interrupted by shutdown; it stays queued");
+            }
+            CancelReason::User | CancelReason::None => {
+                rec.status = Status::Canceled;
+                tracing::info!(job = %rec.id, "job canceled");
+            }
+        },
+        Ok(Ok(Err(RunError::Input(e)))) => {
+            rec.status = Status::Failed;
+            rec.error = Some(failure("invalid-input", "Invalid input", e.to_string()));
+        }
+        Ok(Ok(Err(RunError::Param(e)))) => {
+            rec.status = Status::Failed;
+            rec.error = Some(failure("invalid-parameter", "Invalid parameter", e.to_string()));
+        }
+        Ok(Err(panic)) => {
+            let msg = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            tracing::error!(job = %rec.id, panic = %msg, "pipeline panicked");
+            rec.status = Status::Failed;
+            rec.error = Some(failure("internal", "Internal error", "the pipeline failed unexpectedly"));
+        }
+        Err(_) => {
+            tracing::error!(job = %rec.id, "pipeline task vanished");
+            rec.status = Status::Failed;
+            rec.error = Some(failure("internal", "Internal error", "the pipeline failed unexpectedly"));
+        }
+    }
+    rec
+}
+
+/// Deletes expired jobs, assets and unreferenced blobs every `sweep_interval`.
+pub(super) async fn sweeper(jobs: Jobs) {
+    let interval = jobs.inner.cfg.sweep_interval;
+    loop {
+        tokio::time::sleep(interval).await;
+        if !jobs.accepting() {
+            return;
+        }
+        let j = jobs.clone();
+        let res = tokio::task::spawn_blocking(move || sweep_once(&j)).await;
+        match res {
+            Ok(Ok((expired, files, bytes))) => {
+                if expired > 0 || files > 0 {
+                    tracing::info!(expired_jobs = expired, blobs_removed = files, bytes_freed = bytes, "retention sweep");
+                }
+            }
+            Ok(Err(e)) => tracing::warn!(error = %e, "retention sweep failed"),
+            Err(e) => tracing::warn!(error = %e, "retention sweep task failed"),
+        }
+    }
+}
+
+/// One retention pass; also refreshes the store-size gauge.
+pub(crate) fn sweep_once(jobs: &Jobs) -> Result<(usize, u64, u64), crate::store::StoreError> {
+    let retention = chrono::Duration::from_std(jobs.inner.cfg.retention)
+        .unwrap_or(chrono::Duration::days(3650));
+    let cutoff = chrono::Utc::now() - retention;
+    let expired = jobs.expire(cutoff);
+    let assets = jobs.store().expire_assets(cutoff)?;
+    let keep = jobs.referenced_blobs(&assets);
+    // Blobs younger than this may belong to a job that is storing its outputs right now.
+    let min_age = jobs.inner.cfg.retention.min(Duration::from_secs(600));
+    let (files, bytes) = jobs.store().sweep_blobs(&keep, min_age)?;
+    jobs.inner
+        .metrics
+        .store_bytes
+        .set(i64::try_from(jobs.store().blob_bytes()).unwrap_or(i64::MAX));
+    Ok((expired, files, bytes))
+}

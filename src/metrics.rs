@@ -1,0 +1,76 @@
+//! Prometheus metrics: one registry per server, rendered as text at `GET /metrics`.
+
+use prometheus::{
+    Encoder, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
+};
+
+/// Every metric the service exports.
+#[derive(Clone)]
+pub struct Metrics {
+    registry: Registry,
+    pub http_requests: IntCounterVec,
+    pub http_duration: HistogramVec,
+    pub job_duration: HistogramVec,
+    pub jobs_finished: IntCounterVec,
+    pub queue_depth: IntGauge,
+    pub jobs_running: IntGauge,
+    pub store_bytes: IntGauge,
+}
+
+impl Metrics {
+    /// Builds and registers the metrics (fails only on malformed static definitions).
+    pub fn new() -> Result<Self, prometheus::Error> {
+        let registry = Registry::new_custom(Some("phenomena".into()), None)?;
+        let m = Self {
+            http_requests: IntCounterVec::new(
+                Opts::new("http_requests_total", "HTTP requests by route, method and status"),
+                &["route", "method", "status"],
+            )?,
+            http_duration: HistogramVec::new(
+                HistogramOpts::new("http_request_duration_seconds", "HTTP request latency by route")
+                    .buckets(vec![
+                        0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5,
+                        10.0,
+                    ]),
+                &["route", "method"],
+            )?,
+            job_duration: HistogramVec::new(
+                HistogramOpts::new(
+                    "job_stage_duration_seconds",
+                    "Pipeline time by pipeline and stage (stage=\"total\" for the whole job)",
+                )
+                .buckets(vec![
+                    0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0,
+                    120.0,
+                ]),
+                &["pipeline", "stage"],
+            )?,
+            jobs_finished: IntCounterVec::new(
+                Opts::new("jobs_finished_total", "Jobs by pipeline and final status"),
+                &["pipeline", "status"],
+            )?,
+            queue_depth: IntGauge::new("queue_depth", "Jobs waiting in the queue")?,
+            jobs_running: IntGauge::new("jobs_running", "Jobs running now")?,
+            store_bytes: IntGauge::new("store_bytes", "Bytes held in the blob store")?,
+            registry,
+        };
+        m.registry.register(Box::new(m.http_requests.clone()))?;
+        m.registry.register(Box::new(m.http_duration.clone()))?;
+        m.registry.register(Box::new(m.job_duration.clone()))?;
+        m.registry.register(Box::new(m.jobs_finished.clone()))?;
+        m.registry.register(Box::new(m.queue_depth.clone()))?;
+        m.registry.register(Box::new(m.jobs_running.clone()))?;
+        m.registry.register(Box::new(m.store_bytes.clone()))?;
+        Ok(m)
+    }
+
+    /// The Prometheus text exposition of every metric.
+    pub fn render(&self) -> String {
+        let mut buf = Vec::new();
+        if let Err(e) = TextEncoder::new().encode(&self.registry.gather(), &mut buf) {
+            tracing::error!(error = %e, "metrics encoding failed");
+        }
+        String::from_utf8(buf).unwrap_or_default()
+    }
+}
+
