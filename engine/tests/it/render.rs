@@ -489,3 +489,195 @@ pub(crate) fn check_glb(bytes: &[u8]) -> serde_json::Value {
     assert_eq!(count(&prim["indices"]) % 3, 0);
     doc
 }
+
+/// Bilinear resample of a grid to `nw × nh` plus a little deterministic high-frequency detail.
+fn resample(src: &[f32], w: usize, h: usize, nw: usize, nh: usize, detail: f32) -> Vec<f32> {
+    let mut out = Vec::with_capacity(nw * nh);
+    let mut rng = Lcg(99);
+    for r in 0..nh {
+        let v = r as f64 * (h - 1) as f64 / (nh - 1) as f64;
+        let (j, fz) = ((v as usize).min(h - 2), v - (v as usize).min(h - 2) as f64);
+        for c in 0..nw {
+            let u = c as f64 * (w - 1) as f64 / (nw - 1) as f64;
+            let (i, fx) = ((u as usize).min(w - 2), u - (u as usize).min(w - 2) as f64);
+            let k = j * w + i;
+            let v = (1.0 - fx) * (1.0 - fz) * f64::from(src[k])
+                + fx * (1.0 - fz) * f64::from(src[k + 1])
+                + (1.0 - fx) * fz * f64::from(src[k + w])
+                + fx * fz * f64::from(src[k + w + 1]);
+            out.push(v as f32 + detail * (rng.next() as f32 - 0.5));
+        }
+    }
+    out
+}
+
+fn ramp_albedo(heights: &[f32]) -> Vec<[f32; 3]> {
+    let (lo, hi) = heights
+        .iter()
+        .filter(|v| !v.is_nan())
+        .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+    heights
+        .iter()
+        .map(|&v| height_colour((v - lo) / (hi - lo).max(1e-6)))
+        .collect()
+}
+
+/// Timings (release): `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture render::timings`
+/// (runs `timings_paper` and `timings_big`).
+#[test]
+#[ignore]
+fn timings_paper() {
+    use std::time::Instant;
+    let time = |label: &str, reps: u32, f: &mut dyn FnMut()| {
+        f(); // warm up (sRGB table, pool)
+        let t = Instant::now();
+        for _ in 0..reps {
+            f();
+        }
+        let ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(reps);
+        println!("{label:<58} {ms:9.2} ms");
+    };
+    println!("rayon threads: {}", rayon::current_num_threads());
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+
+    // Paper case: a 400×200 DEM (50 m mesh) to 900×600.
+    let (w, h, _, colo) = load_asc("/work/shared/data/dem/colorado_front_range_srtmgl3.asc");
+    let paper: Vec<f32> = (0..200)
+        .flat_map(|r| (0..400).map(move |c| (r + 200, c + 150)))
+        .map(|(r, c)| colo[r * w + c])
+        .collect();
+    let _ = h;
+    let albedo = ramp_albedo(&paper);
+    let scene = TerrainScene {
+        width: 400,
+        height: 200,
+        dx: 50.0,
+        dy: 50.0,
+        heights: &paper,
+        albedo: &albedo,
+    };
+    let (c, r) = scene.bounding_sphere();
+    let cam = Camera::orbit(c, 180.0, 30.0, Camera::auto_distance(r, 35.0) * 0.75, 35.0);
+    let light = Lighting {
+        sun_dir: sun_direction(230.0, 35.0),
+        ..Lighting::default()
+    };
+    let mut img = None;
+    for (label, l) in [
+        ("paper 400x200 -> 900x600, 4 spp + shadows", light),
+        (
+            "paper 400x200 -> 900x600, 1 spp + shadows",
+            Lighting {
+                samples: 1,
+                ..light
+            },
+        ),
+        (
+            "paper 400x200 -> 900x600, 4 spp, no shading",
+            Lighting {
+                shading: false,
+                ..light
+            },
+        ),
+    ] {
+        time(label, 20, &mut || {
+            img = Some(render_terrain(&scene, &cam, &l, 900, 600, &NoControl, (0.0, 1.0)).unwrap())
+        });
+        if img.is_some() && label.contains("4 spp + shadows") {
+            std::fs::write(
+                dir.join("paper_case.png"),
+                png_write::encode_rgba(img.as_ref().unwrap()),
+            )
+            .unwrap();
+        }
+    }
+}
+
+/// Timings for the 4096² case (release; see [`timings_paper`]).
+#[test]
+#[ignore]
+fn timings_big() {
+    use std::time::Instant;
+    let time = |label: &str, reps: u32, f: &mut dyn FnMut()| {
+        f(); // warm up (sRGB table, pool)
+        let t = Instant::now();
+        for _ in 0..reps {
+            f();
+        }
+        let ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(reps);
+        println!("{label:<58} {ms:9.2} ms");
+    };
+    println!("rayon threads: {}", rayon::current_num_threads());
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+
+    let light = Lighting {
+        sun_dir: sun_direction(230.0, 35.0),
+        ..Lighting::default()
+    };
+    // Big case: 4096×4096 (Tanzawa resampled + 3 m detail, 10 m mesh) to 1920×1080.
+    let (tw, th, _, tz) = load_asc("/work/shared/data/dem/tanzawa_sagami_aster_gdem2_f32.asc");
+    let t = Instant::now();
+    let big = resample(&tz, tw, th, 4096, 4096, 3.0);
+    println!(
+        "{:<58} {:9.2} ms",
+        "(resample to 4096x4096, test setup)",
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let albedo = ramp_albedo(&big);
+    let scene = TerrainScene {
+        width: 4096,
+        height: 4096,
+        dx: 10.0,
+        dy: 10.0,
+        heights: &big,
+        albedo: &albedo,
+    };
+    time("pyramid build 4096x4096", 5, &mut || {
+        drop(TerrainAccel::new(&scene))
+    });
+    let (c, r) = scene.bounding_sphere();
+    let cam = Camera::orbit(c, 160.0, 30.0, Camera::auto_distance(r, 35.0) * 0.8, 35.0);
+    let mut img = None;
+    for (label, l) in [
+        (
+            "big 4096^2 -> 1920x1080, 4 spp + shadows (incl. pyramid)",
+            light,
+        ),
+        (
+            "big 4096^2 -> 1920x1080, 4 spp, no shadows",
+            Lighting {
+                shadows: false,
+                ..light
+            },
+        ),
+        (
+            "big 4096^2 -> 1920x1080, 1 spp + shadows",
+            Lighting {
+                samples: 1,
+                ..light
+            },
+        ),
+    ] {
+        time(label, 3, &mut || {
+            img =
+                Some(render_terrain(&scene, &cam, &l, 1920, 1080, &NoControl, (0.0, 1.0)).unwrap())
+        });
+        if label.contains("4 spp + shadows") {
+            std::fs::write(
+                dir.join("big_case.png"),
+                png_write::encode_rgba(img.as_ref().unwrap()),
+            )
+            .unwrap();
+        }
+    }
+    let img = img.unwrap();
+    let mut bytes = 0;
+    time("png encode 1920x1080 rgba (fast)", 5, &mut || {
+        bytes = png_write::encode_rgba(&img).len()
+    });
+    println!("  png size {} KiB", bytes / 1024);
+    time("glb 4096^2 -> <= 1,000,000 vertices", 3, &mut || {
+        bytes = glb::terrain_glb(&big, 4096, 4096, 10.0, 10.0, &albedo, 1_000_000).len()
+    });
+    println!("  glb size {} KiB", bytes / 1024);
+}
