@@ -35,7 +35,14 @@ pub fn altitude_factor(h: f32, snowline: f32, h_max: f32, exponent: f32) -> f32 
     if span <= 0.0 || h.is_nan() {
         return 0.0;
     }
-    ((h - snowline) / span).clamp(0.0, 1.0).powf(exponent)
+    let x = ((h - snowline) / span).clamp(0.0, 1.0);
+    if exponent == 2.0 {
+        x * x
+    } else if exponent == 1.0 {
+        x
+    } else {
+        x.powf(exponent)
+    }
 }
 
 /// Applies the altitude term in place: `t ← 1 − (1 − t) · a(h)` with `heights` the original

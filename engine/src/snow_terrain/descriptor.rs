@@ -152,7 +152,7 @@ pub fn compute(
         ctl.checkpoint()?;
         sm.step();
     }
-    let smoothed = sm.finish();
+    let smoothed = sm.current();
     timings.push(("smooth", ms(t0)));
 
     // 2. TSA on the smoothed field × exaggeration.
@@ -205,7 +205,8 @@ pub fn compute(
     // 5. Smooth t.
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    let mut sm = Smoother::new(&t, w, h, p.smooth_radius);
+    // t is NaN exactly where the heights are: reuse the buffers and neighbour counts of step 1.
+    sm.reload(&t);
     for i in 0..p.descriptor_smooth_iterations {
         prog.report(4, i as f32 / p.descriptor_smooth_iterations as f32);
         ctl.checkpoint()?;

@@ -142,6 +142,33 @@ impl Smoother {
         std::mem::swap(&mut self.cur, &mut self.next);
     }
 
+    /// Starts over on a new field with the same nodata cells as the one this smoother was made
+    /// for, reusing its buffers and neighbour counts (no allocation, no counting pass).
+    ///
+    /// # Panics
+    /// If `field` has a different length or NaN pattern.
+    pub fn reload(&mut self, field: &[f32]) {
+        assert_eq!(field.len(), self.cur.len(), "grid size mismatch");
+        self.cur
+            .par_iter_mut()
+            .zip(field.par_iter())
+            .zip(self.valid.par_iter())
+            .for_each(|((c, &v), &ok)| {
+                assert_eq!(ok, !v.is_nan(), "nodata pattern differs");
+                *c = if ok { v } else { 0.0 };
+            });
+    }
+
+    /// A copy of the current grid with NaN at nodata (allocates one grid).
+    pub fn current(&self) -> Vec<f32> {
+        let mut out = vec![0.0f32; self.cur.len()];
+        out.par_iter_mut()
+            .zip(self.cur.par_iter())
+            .zip(self.valid.par_iter())
+            .for_each(|((o, &c), &ok)| *o = if ok { c } else { f32::NAN });
+        out
+    }
+
     /// The smoothed grid with NaN restored at nodata.
     pub fn finish(self) -> Vec<f32> {
         let mut out = self.cur;
@@ -156,6 +183,10 @@ impl Smoother {
     }
 }
 
+/// Columns per tile of a row: the accumulator (2 KiB) and the source tiles stay in L1 while all
+/// offsets are added.
+const TILE: usize = 512;
+
 /// `out[cell] = Σ src[cell + offset]` over the diamond offsets that fall inside the grid
 /// (the centre excluded). `src` must not hold NaN.
 fn diamond_sums(src: &[f32], width: usize, height: usize, n: usize, out: &mut [f32]) {
@@ -164,37 +195,40 @@ fn diamond_sums(src: &[f32], width: usize, height: usize, n: usize, out: &mut [f
         .for_each(|(band, rows)| {
             for (k, out_row) in rows.chunks_mut(width).enumerate() {
                 let r = band * BAND_ROWS + k;
-                out_row.fill(0.0);
                 let lo = r.saturating_sub(n);
                 let hi = (r + n).min(height - 1);
-                for rr in lo..=hi {
-                    let di = rr.abs_diff(r);
-                    let w = n - di;
-                    let src_row = &src[rr * width..(rr + 1) * width];
-                    for dj in -(w as isize)..=(w as isize) {
-                        if di == 0 && dj == 0 {
-                            continue;
+                for t0 in (0..width).step_by(TILE) {
+                    let t1 = (t0 + TILE).min(width);
+                    let acc = &mut out_row[t0..t1];
+                    acc.fill(0.0);
+                    for rr in lo..=hi {
+                        let di = rr.abs_diff(r);
+                        let w = (n - di) as isize;
+                        let src_row = &src[rr * width..(rr + 1) * width];
+                        for dj in -w..=w {
+                            if di != 0 || dj != 0 {
+                                add_shifted(acc, src_row, t0, dj);
+                            }
                         }
-                        add_shifted(out_row, src_row, dj);
                     }
                 }
             }
         });
 }
 
-/// `acc[c] += src[c + dj]` for every `c` with `c + dj` inside the row.
+/// `acc[c − t0] += src[c + dj]` for the columns `c` of the tile `t0..t0 + acc.len()` with
+/// `c + dj` inside the row.
 #[inline]
-fn add_shifted(acc: &mut [f32], src: &[f32], dj: isize) {
-    let w = acc.len();
-    let s = dj.unsigned_abs();
-    if s >= w {
+fn add_shifted(acc: &mut [f32], src: &[f32], t0: usize, dj: isize) {
+    let w = src.len() as isize;
+    let t0 = t0 as isize;
+    let c0 = t0.max(-dj);
+    let c1 = (t0 + acc.len() as isize).min(w - dj);
+    if c1 <= c0 {
         return;
     }
-    let (a, b) = if dj >= 0 {
-        (&mut acc[..w - s], &src[s..])
-    } else {
-        (&mut acc[s..], &src[..w - s])
-    };
+    let a = &mut acc[(c0 - t0) as usize..(c1 - t0) as usize];
+    let b = &src[(c0 + dj) as usize..(c1 + dj) as usize];
     for (x, &y) in a.iter_mut().zip(b) {
         *x += y;
     }

@@ -215,9 +215,17 @@ fn unpack_row(
     nz: &mut [f32],
 ) {
     let w = g.width;
-    let at = |rr: usize, c: usize| g.heights[rr * w + c];
+    let rows = |k: isize| -> Option<&[f32]> {
+        let rr = r as isize + k;
+        (rr >= 0 && (rr as usize) < g.height)
+            .then(|| &g.heights[rr as usize * w..(rr as usize + 1) * w])
+    };
+    let row = &g.heights[r * w..(r + 1) * w];
+    let (n2, n1, s1, s2) = (rows(-2), rows(-1), rows(1), rows(2));
+    let nan = f32::NAN;
+    let pick = |s: Option<&[f32]>, c: usize| s.map_or(nan, |s| s[c]);
     for c in 0..w {
-        let x = at(r, c);
+        let x = row[c];
         if x.is_nan() {
             h[c] = 0.0;
             v[c] = 0.0;
@@ -227,21 +235,21 @@ fn unpack_row(
             continue;
         }
         h[c] = x;
-        let get = |rr: isize, cc: isize| {
-            if rr < 0 || cc < 0 || rr >= g.height as isize || cc >= w as isize {
-                f32::NAN
+        let at_row = |k: isize| {
+            let cc = c as isize + k;
+            if cc >= 0 && (cc as usize) < w {
+                row[cc as usize]
             } else {
-                at(rr as usize, cc as usize)
+                nan
             }
         };
-        let (ri, ci) = (r as isize, c as isize);
-        let row = [-2, -1, 0, 1, 2].map(|k| get(ri, ci + k));
-        let col = [-2, -1, 0, 1, 2].map(|k| get(ri + k, ci));
+        let rs = [at_row(-2), at_row(-1), x, at_row(1), at_row(2)];
+        let cs = [pick(n2, c), pick(n1, c), x, pick(s1, c), pick(s2, c)];
         // 1 = valid with a central-difference normal, 0.5 = valid with a one-sided one.
-        let full = !(row[1].is_nan() || row[3].is_nan() || col[1].is_nan() || col[3].is_nan());
+        let full = !(rs[1].is_nan() || rs[3].is_nan() || cs[1].is_nan() || cs[3].is_nan());
         v[c] = if full { 1.0 } else { 0.5 };
-        let gx = derivative(row, g.dx);
-        let gz = derivative(col, g.dy);
+        let gx = derivative(rs, g.dx);
+        let gz = derivative(cs, g.dy);
         let inv = 1.0 / (gx * gx + 1.0 + gz * gz).sqrt();
         nx[c] = -gx * inv;
         ny[c] = inv;
@@ -254,7 +262,13 @@ fn unpack_row(
 /// one-sided difference, else the first-order one, else 0.
 #[inline]
 fn derivative(s: [f32; 5], d: f32) -> f32 {
-    let ok = s.map(|v| !v.is_nan());
+    let ok = [
+        !s[0].is_nan(),
+        !s[1].is_nan(),
+        true,
+        !s[3].is_nan(),
+        !s[4].is_nan(),
+    ];
     match (ok[1], ok[3]) {
         (true, true) => (s[3] - s[1]) / (2.0 * d),
         (false, true) if ok[4] => (-3.0 * s[2] + 4.0 * s[3] - s[4]) / (2.0 * d),
@@ -304,9 +318,7 @@ fn bounds(acc: &mut [f32], x: Pt<'_>, p: Pt<'_>, ox: f32, oz: f32, hdx: f32, hdz
         let tpl = if plane_ok { t } else { f32::INFINITY };
         let b = if tpl < tp { tpl } else { tp };
         let b = if pv[k] > 0.0 { b } else { f32::INFINITY };
-        if b < acc[k] {
-            acc[k] = b;
-        }
+        acc[k] = if b < acc[k] { b } else { acc[k] };
     }
 }
 

@@ -427,8 +427,13 @@ fn fractal(n: usize) -> Dem {
 #[test]
 #[ignore = "timing; run by hand in release"]
 fn descriptor_4096() {
+    let t0 = std::time::Instant::now();
     let dem = fractal(4096);
-    println!("rayon threads: {}", rayon::current_num_threads());
+    println!(
+        "rayon threads: {}, terrain generated in {:.0} ms",
+        rayon::current_num_threads(),
+        t0.elapsed().as_secs_f64() * 1e3
+    );
     for window in [1, 2] {
         let p = DescriptorParams {
             tsa_window: window,
