@@ -47,7 +47,7 @@ pub struct DescriptorParams {
     /// `tsa` output: anything ≥ `probe_radius` maps to bare rock. Default: 100 000 m.
     pub tsa_max: f32,
     /// Probe (brush) radius r of Eq. 4 in metres of the exaggerated terrain, > 0. A point whose
-    /// tangent sphere is smaller than the probe keeps snow in proportion. Default: 3000 m (see
+    /// tangent sphere is smaller than the probe keeps snow in proportion. Default: 5000 m (see
     /// [`DescriptorParams::default`]).
     pub probe_radius: f32,
     /// b of Eq. 4: how much rock shows where TSA = 0, [0, 1]. Paper: 0. Default: 0.
@@ -78,17 +78,24 @@ impl Default for DescriptorParams {
     ///   over ≈ 5 cells, enough to turn 25–90 m DEM noise into valleys and ridges.
     /// * `tsa_window` 1: the paper's neighbourhood, and the fast one; after smoothing, wider windows
     ///   changed the picture little (TSA measures curvature of an already smooth field).
-    /// * `probe_radius` 3000 m: on the smoothed 25–90 m DEMs valley floors and cirques have
-    ///   concave curvature radii of a few hundred metres to a few kilometres; 3 km keeps snow in
-    ///   those and sweeps ridges, spurs and open slopes. The paper's 5.5 (Fig. 13b) in units of
-    ///   0.1 = 50 m is 2.75 km, the same scale.
+    /// * `probe_radius` 5000 m. TSA measures, to first order, the radius of curvature of the
+    ///   smoothed terrain in its most concave direction, a physical length, which is why the probe is
+    ///   in metres. The paper's radii are of this size: its grid spacing is 0.1 unit for a 50 m mesh,
+    ///   so Fig. 13b's 5.5 is 2.75 km and Fig. 12's 7.5 is 3.75 km. Measured TSA medians after the
+    ///   default smoothing: ~3.4 km on Tanzawa (25–31 m cells), ~4.9 km on the Colorado Front Range
+    ///   and ~5.1 km on Jacksboro (70–93 m cells), 0.55 km on the 10 m Maunga Whau. At 5 km about
+    ///   half of a mountain DEM's cells (the concave half) keep some snow: the valley network and
+    ///   cirques read white, ridges and spurs dark. At 3 km only valley floors kept snow (thin
+    ///   lines); at 10 km the snow joined across most slopes. Caveat: the smoothing radius is in
+    ///   cells (paper), so a finer DEM resolves smaller hollows at the same probe; raise
+    ///   `smooth_radius` on DEMs finer than ~20 m for the same look.
     fn default() -> Self {
         Self {
             smooth_radius: 3,
             smooth_iterations: 5,
             tsa_window: 1,
             tsa_max: 100_000.0,
-            probe_radius: 3000.0,
+            probe_radius: 5000.0,
             b: 0.0,
             vertical_exaggeration: 1.0,
             snowline: 0.0,
