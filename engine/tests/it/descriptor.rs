@@ -1,5 +1,6 @@
 //! Surface descriptor (SPEC §1 steps 1–6) end to end: real DEMs, determinism, progress and
 //! cancellation, and a hand-run timing of the stages on a 4096² fractal terrain.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
