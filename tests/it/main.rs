@@ -1,4 +1,7 @@
 //! Server integration tests: the real server on port 0, driven over HTTP.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod api;
 mod common;
+mod openapi;
