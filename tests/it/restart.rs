@@ -1,0 +1,142 @@
+//! Crash recovery: `kill -9` the real server binary mid-job, start it again on the same data
+//! directory, and the job completes with the same bytes the CLI produces for the same request.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+const BIN: &str = env!("CARGO_BIN_EXE_phenomena");
+
+/// Starts `phenomena serve` on an ephemeral port; returns the child and its address (read from
+/// the JSON log line "listening").
+fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
+    let mut child = Command::new(BIN)
+        .args(["serve", "--bind", "127.0.0.1:0", "--log-format", "json", "--threads", "2"])
+        .arg("--data-dir")
+        .arg(data_dir)
+        .env("PHENOMENA_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            if !sent {
+                if let Ok(v) = serde_json::from_str::<Value>(&line) {
+                    if v["fields"]["message"] == "listening" {
+                        let _ = tx.send(v["fields"]["addr"].as_str().unwrap().to_string());
+                        sent = true;
+                    }
+                }
+            }
+        }
+    });
+    let addr = rx.recv_timeout(Duration::from_secs(30)).expect("server did not start");
+    (child, addr)
+}
+
+/// A 1536² synthetic terrain (sums of sines), big enough that a job runs for a while.
+fn synthetic_npy() -> Vec<u8> {
+    let n = 1536usize;
+    let mut data = Vec::with_capacity(n * n);
+    for r in 0..n {
+        for c in 0..n {
+            let (x, y) = (c as f32 / n as f32, r as f32 / n as f32);
+            let h = 800.0 * (x * 7.0).sin() * (y * 5.0).cos()
+                + 300.0 * (x * 23.0 + y * 17.0).sin()
+                + 90.0 * (x * 71.0).cos() * (y * 59.0).sin()
+                + 1200.0;
+            data.push(h);
+        }
+    }
+    use npyz::WriterBuilder;
+    let mut out = Vec::new();
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[n as u64, n as u64])
+        .writer(&mut out)
+        .begin_nd()
+        .unwrap();
+    w.extend(data).unwrap();
+    w.finish().unwrap();
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kill_9_mid_job_then_restart_completes_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = synthetic_npy();
+    let params = json!({"width": 1280, "height": 720, "samples": 16, "cell_size": 30.0, "mesh_max_vertices": 20000});
+    let client = reqwest::Client::new();
+
+    let (mut child, addr) = spawn_server(dir.path());
+    let form = reqwest::multipart::Form::new()
+        .text("params", params.to_string())
+        .part("dem", reqwest::multipart::Part::bytes(input.clone()).file_name("terrain.npy"));
+    let resp = client.post(format!("http://{addr}/v1/snow-terrain")).multipart(form).send().await.unwrap();
+    assert_eq!(resp.status().as_u16(), 202);
+    let job: Value = resp.json().await.unwrap();
+    let id = job["id"].as_str().unwrap().to_string();
+
+    // Wait until the job is running and has made progress, then kill the process outright.
+    let t0 = Instant::now();
+    loop {
+        let j: Value = client.get(format!("http://{addr}/v1/jobs/{id}")).send().await.unwrap().json().await.unwrap();
+        if j["status"] == "running" && j["progress"].as_f64().unwrap() > 0.0 {
+            break;
+        }
+        assert_ne!(j["status"], "succeeded", "the job finished before it could be killed; make it bigger");
+        assert!(t0.elapsed() < Duration::from_secs(60));
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+
+    let (mut child, addr) = spawn_server(dir.path());
+    let done: Value = loop {
+        let j: Value = client.get(format!("http://{addr}/v1/jobs/{id}")).header("prefer", "wait=30").send().await.unwrap().json().await.unwrap();
+        if j["status"] != "queued" && j["status"] != "running" {
+            break j;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(300));
+    };
+    assert_eq!(done["status"], "succeeded", "{done}");
+    assert_eq!(done["attempts"], json!(2), "the job ran again after the crash");
+
+    // The outputs equal an offline CLI run of the same request.
+    let cli_in = dir.path().join("cli-input.npy");
+    std::fs::write(&cli_in, &input).unwrap();
+    let params_file = dir.path().join("params.json");
+    std::fs::write(&params_file, params.to_string()).unwrap();
+    let out_dir = dir.path().join("cli-out");
+    let status = Command::new(BIN)
+        .args(["render", "snow-terrain", "--quiet", "--input"])
+        .arg(&cli_in)
+        .arg("--params")
+        .arg(&params_file)
+        .arg("--out")
+        .arg(&out_dir)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for name in ["render.png", "snow_cover.tif", "descriptor.png", "terrain.glb"] {
+        let served = client
+            .get(format!("http://{addr}/v1/jobs/{id}/outputs/{name}"))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap();
+        let offline = std::fs::read(out_dir.join(name)).unwrap();
+        assert!(served.as_ref() == offline.as_slice(), "{name} differs between the restarted job and the CLI");
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
