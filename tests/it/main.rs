@@ -6,3 +6,4 @@ mod api;
 mod common;
 mod openapi;
 mod restart;
+mod snow_terrain;
