@@ -117,7 +117,9 @@ pub struct Lighting {
     /// Extra rays for pixels that need anti-aliasing, 1..=64 (clamped; 1 = no anti-aliasing, one
     /// ray per pixel). Default: 4 (rotated grid).
     pub samples: u32,
-    /// Cast shadows (one shadow ray per sample that hits). Default: true.
+    /// Cast shadows. DEMs with fewer grid points than image pixels get one shadow ray per grid
+    /// point, interpolated bilinearly (soft edges one cell wide); bigger DEMs one shadow ray per
+    /// sample that hits (sharp). Default: true.
     pub shadows: bool,
 }
 
@@ -157,6 +159,9 @@ pub struct Hit {
     pub fz: f64,
 }
 
+/// Pyramid level at which rays start (nodes of 2^4 = 16 cells).
+const START_LEVEL: usize = 4;
+
 struct Level {
     w: usize,
     h: usize,
@@ -172,6 +177,8 @@ pub struct TerrainAccel<'a> {
     ch: usize,
     /// `levels[k]` has nodes of `2^(k+1)` cells; the last one is a single node.
     levels: Vec<Level>,
+    /// Node counts (x, z) per level, level 0 = cells; `dims[level]`.
+    dims: Vec<(usize, usize)>,
     hmin: f64,
     hmax: f64,
     half_x: f64,
@@ -236,11 +243,15 @@ impl<'a> TerrainAccel<'a> {
                 levels.push(Level { w, h, max });
             }
         }
+        let dims = std::iter::once((cw, ch))
+            .chain(levels.iter().map(|l| (l.w, l.h)))
+            .collect();
         Self {
             scene: *scene,
             cw,
             ch,
             levels,
+            dims,
             hmin,
             hmax,
             half_x: cw as f64 * scene.dx * 0.5,
@@ -264,8 +275,14 @@ impl<'a> TerrainAccel<'a> {
         let r = self.grid_ray(origin, dir);
         let (t0, t1) = self.clip(&r, tmin, tmax)?;
         let top = self.levels.len();
-        let mut level = top;
-        let (mut ci, mut cj) = (0usize, 0usize);
+        // Start at 16-cell nodes rather than the root: from the root every ray first spends
+        // ~log2(n) visits descending; the ascent rule climbs again where the ray is high.
+        // Measured: 19 → 15 node visits per ray on the paper case.
+        let mut level = top.min(START_LEVEL);
+        let (lw, lh) = self.dims(level);
+        let s0 = (1u64 << level) as f64;
+        let mut ci = (((r.ou + r.du * t0) / s0).floor().max(0.0) as usize).min(lw - 1);
+        let mut cj = (((r.ov + r.dv * t0) / s0).floor().max(0.0) as usize).min(lh - 1);
         let mut t = t0;
         loop {
             let s = (1u64 << level) as f64;
@@ -400,6 +417,58 @@ impl<'a> TerrainAccel<'a> {
         normalize([-gx, 1.0, -gz])
     }
 
+    /// True when nothing lies between surface point `p` and the sun (`sun` unit). One shadow ray
+    /// through the pyramid, started `eps` above the surface.
+    pub fn sunlit(&self, p: [f64; 3], sun: [f64; 3], eps: f64) -> bool {
+        let o = [
+            p[0] + sun[0] * eps,
+            p[1] + sun[1] * eps + eps,
+            p[2] + sun[2] * eps,
+        ];
+        self.intersect(o, sun, eps, f64::INFINITY).is_none()
+    }
+
+    /// Sun visibility (1 lit, 0 shadowed; 1 for nodata) at every grid point: one shadow ray per
+    /// valid point, parallel over rows, `checkpoint` per row. Allocates `width × height` floats.
+    pub fn sun_visibility(
+        &self,
+        sun: [f64; 3],
+        eps: f64,
+        ctl: &dyn Control,
+    ) -> Result<Vec<f32>, Canceled> {
+        let s = &self.scene;
+        let mut vis = vec![1.0f32; s.width * s.height];
+        vis.par_chunks_mut(s.width.max(1))
+            .enumerate()
+            .try_for_each(|(r, row)| {
+                ctl.checkpoint()?;
+                for (c, v) in row.iter_mut().enumerate() {
+                    let h = s.heights[r * s.width + c];
+                    if !h.is_nan() {
+                        let p = [
+                            c as f64 * s.dx - self.half_x,
+                            f64::from(h),
+                            r as f64 * s.dy - self.half_z,
+                        ];
+                        *v = if self.sunlit(p, sun, eps) { 1.0 } else { 0.0 };
+                    }
+                }
+                Ok(())
+            })?;
+        Ok(vis)
+    }
+
+    /// Bilinear interpolation of a per-grid-point scalar at a hit.
+    pub fn hit_bilinear(&self, hit: &Hit, values: &[f32]) -> f32 {
+        let w = self.scene.width;
+        let k = hit.row * w + hit.col;
+        let (fx, fz) = (hit.fx as f32, hit.fz as f32);
+        (1.0 - fx) * (1.0 - fz) * values[k]
+            + fx * (1.0 - fz) * values[k + 1]
+            + (1.0 - fx) * fz * values[k + w]
+            + fx * fz * values[k + w + 1]
+    }
+
     /// Bilinear albedo at a hit, linear RGB.
     pub fn hit_albedo(&self, hit: &Hit) -> [f32; 3] {
         let s = &self.scene;
@@ -503,12 +572,7 @@ impl<'a> TerrainAccel<'a> {
 
     #[inline]
     fn dims(&self, level: usize) -> (usize, usize) {
-        if level == 0 {
-            (self.cw, self.ch)
-        } else {
-            let l = &self.levels[level - 1];
-            (l.w, l.h)
-        }
+        self.dims[level]
     }
 
     #[inline]
@@ -770,6 +834,8 @@ struct Shader<'s, 'a> {
     near: f64,
     inv_range: f64,
     eps: f64,
+    /// Per-grid-point sun visibility (small DEMs); `None` = a shadow ray per hit.
+    sun_map: Option<&'s [f32]>,
 }
 
 impl Shader<'_, '_> {
@@ -799,19 +865,10 @@ impl Shader<'_, '_> {
             let mut direct = 0.0f32;
             if ndl > 0.0 && self.sun[1] > -1.0 {
                 direct = ndl as f32;
-                if l.shadows {
-                    let p = acc.hit_position(&hit);
-                    let o = [
-                        p[0] + self.sun[0] * self.eps,
-                        p[1] + self.sun[1] * self.eps + self.eps,
-                        p[2] + self.sun[2] * self.eps,
-                    ];
-                    if acc
-                        .intersect(o, self.sun, self.eps, f64::INFINITY)
-                        .is_some()
-                    {
-                        direct = 0.0;
-                    }
+                if let Some(map) = self.sun_map {
+                    direct *= acc.hit_bilinear(&hit, map);
+                } else if l.shadows && !acc.sunlit(acc.hit_position(&hit), self.sun, self.eps) {
+                    direct = 0.0;
                 }
             }
             let amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
@@ -839,7 +896,8 @@ impl Shader<'_, '_> {
     #[inline]
     fn sky(&self, y_frac: f32) -> [f32; 3] {
         let l = self.light;
-        let s = (1.0 - y_frac).clamp(0.0, 1.0).powf(1.5);
+        let s = (1.0 - y_frac).clamp(0.0, 1.0);
+        let s = s * s.sqrt();
         [
             l.sky_horizon[0] + (l.sky_top[0] - l.sky_horizon[0]) * s,
             l.sky_horizon[1] + (l.sky_top[1] - l.sky_horizon[1]) * s,
@@ -895,14 +953,25 @@ pub fn render_with(
     let ns = sample_pattern(light.samples, &mut pattern);
     let pattern = &pattern[..ns];
     let (near, far) = accel.depth_range(gen.eye);
+    let sun = normalize(light.sun_dir);
+    let eps = 1e-3 * accel.cell;
+    // Shadows: one ray per grid point when the grid has fewer points than the image has pixels,
+    // else one ray per hit.
+    let sc = accel.scene();
+    let sun_map = if light.shading && light.shadows && sc.width * sc.height < w * h {
+        Some(accel.sun_visibility(sun, eps, ctl)?)
+    } else {
+        None
+    };
     let shader = Shader {
         accel,
         light,
         eye: gen.eye,
-        sun: normalize(light.sun_dir),
+        sun,
         near,
         inv_range: if far > near { 1.0 / (far - near) } else { 0.0 },
-        eps: 1e-3 * accel.cell,
+        eps,
+        sun_map: sun_map.as_deref(),
     };
     let bands = h.div_ceil(BAND);
     let done = AtomicUsize::new(0);
