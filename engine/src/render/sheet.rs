@@ -51,9 +51,9 @@ fn blit_over(dst: &mut RgbaImage, src: &RgbaImage, x0: usize, y0: usize) {
             let s = &src.data[(y * sw + x) * 4..(y * sw + x) * 4 + 4];
             let d = ((y0 + y) * dw + x0 + x) * 4;
             let a = u32::from(s[3]);
-            for c in 0..3 {
-                let v = u32::from(s[c]) * a + u32::from(dst.data[d + c]) * (255 - a);
-                dst.data[d + c] = ((v + 127) / 255) as u8;
+            for (o, &v) in dst.data[d..d + 3].iter_mut().zip(&s[..3]) {
+                let mix = u32::from(v) * a + u32::from(*o) * (255 - a);
+                *o = ((mix + 127) / 255) as u8;
             }
         }
     }

@@ -503,7 +503,7 @@ impl<'a> TerrainAccel<'a> {
             return false;
         }
         let t = (self.hmin - origin[1]) / dir[1];
-        if !(t >= tmin) {
+        if t.is_nan() || t < tmin {
             return false;
         }
         let x = origin[0] + dir[0] * t;
@@ -545,8 +545,8 @@ impl<'a> TerrainAccel<'a> {
             let row = if r.dv > 0.0 { 0 } else { self.ch };
             edge(u, self.cw, &|i| s.heights[row * s.width + i])
         };
-        // NaN edge (nodata margin) compares false: the ray counts as falling through.
-        !(r.oy + r.dy * te < h_edge - self.eps_y)
+        // A NaN edge (nodata margin) counts as falling through.
+        h_edge.is_nan() || r.oy + r.dy * te >= h_edge - self.eps_y
     }
 
     /// Distances from `eye` to the nearest and farthest points of the bounding box.
@@ -667,7 +667,7 @@ impl<'a> TerrainAccel<'a> {
             }
             let fx = a + r.du * t;
             let fz = c + r.dv * t;
-            let inside = fx >= -EPS && fx <= 1.0 + EPS && fz >= -EPS && fz <= 1.0 + EPS;
+            let inside = (-EPS..=1.0 + EPS).contains(&fx) && (-EPS..=1.0 + EPS).contains(&fz);
             let side = if upper {
                 fx - fz >= -EPS
             } else {
@@ -1023,8 +1023,8 @@ pub fn render_with(
                     if refine {
                         for &(ox, oy) in pattern {
                             let s = shader.shade(gen.dir(x as f64 + ox, y + oy), y_frac);
-                            for ch in 0..3 {
-                                sum[ch] += s.c[ch] * s.a;
+                            for (acc, c) in sum.iter_mut().zip(s.c) {
+                                *acc += c * s.a;
                             }
                             cover += s.a;
                         }

@@ -1,5 +1,6 @@
 //! Renderer tests: camera geometry, the ray caster against analytic surfaces and a brute-force
 //! reference, shading, alpha for holes, determinism, the contact sheet, PNG and GLB writers.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
 
 use phenomena_engine::formats::{glb, png_write};
 use phenomena_engine::render::{
@@ -188,7 +189,7 @@ fn intersection_matches_analytic_planes() {
 
 fn random_terrain(w: usize, h: usize, seed: u64, holes: bool) -> Vec<f32> {
     let mut rng = Lcg(seed);
-    let phase: Vec<f64> = (0..6).map(|_| rng.next() * 6.28).collect();
+    let phase: Vec<f64> = (0..6).map(|_| rng.next() * std::f64::consts::TAU).collect();
     (0..w * h)
         .map(|k| {
             let (x, z) = ((k % w) as f64, (k / w) as f64);
@@ -522,6 +523,17 @@ fn ramp_albedo(heights: &[f32]) -> Vec<[f32; 3]> {
         .collect()
 }
 
+/// CPU time of this process (all threads), ms, from /proc (10 ms ticks): with other jobs on the
+/// machine, cpu / threads is a fairer figure than wall time.
+fn cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let ticks: f64 = f.get(11).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+        + f.get(12).and_then(|v| v.parse().ok()).unwrap_or(0.0);
+    ticks * 10.0
+}
+
 /// Timings (release): `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture render::timings`
 /// (runs `timings_paper` and `timings_big`).
 #[test]
@@ -530,12 +542,13 @@ fn timings_paper() {
     use std::time::Instant;
     let time = |label: &str, reps: u32, f: &mut dyn FnMut()| {
         f(); // warm up (sRGB table, pool)
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_ms());
         for _ in 0..reps {
             f();
         }
         let ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(reps);
-        println!("{label:<58} {ms:9.2} ms");
+        let cpu = (cpu_ms() - c) / f64::from(reps);
+        println!("{label:<58} {ms:9.2} ms wall {cpu:9.2} ms cpu");
     };
     println!("rayon threads: {}", rayon::current_num_threads());
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
@@ -583,12 +596,8 @@ fn timings_paper() {
         time(label, 20, &mut || {
             img = Some(render_terrain(&scene, &cam, &l, 900, 600, &NoControl, (0.0, 1.0)).unwrap())
         });
-        if img.is_some() && label.contains("4 spp + shadows") {
-            std::fs::write(
-                dir.join("paper_case.png"),
-                png_write::encode_rgba(img.as_ref().unwrap()),
-            )
-            .unwrap();
+        if let (Some(img), true) = (&img, label.contains("4 spp + shadows")) {
+            std::fs::write(dir.join("paper_case.png"), png_write::encode_rgba(img)).unwrap();
         }
     }
 }
@@ -600,12 +609,13 @@ fn timings_big() {
     use std::time::Instant;
     let time = |label: &str, reps: u32, f: &mut dyn FnMut()| {
         f(); // warm up (sRGB table, pool)
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_ms());
         for _ in 0..reps {
             f();
         }
         let ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(reps);
-        println!("{label:<58} {ms:9.2} ms");
+        let cpu = (cpu_ms() - c) / f64::from(reps);
+        println!("{label:<58} {ms:9.2} ms wall {cpu:9.2} ms cpu");
     };
     println!("rayon threads: {}", rayon::current_num_threads());
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
