@@ -93,7 +93,8 @@ struct BarControl(ProgressBar);
 
 impl Control for BarControl {
     fn progress(&self, stage: &str, fraction: f32) {
-        self.0.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
+        self.0
+            .set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
         if self.0.message() != stage {
             self.0.set_message(stage.to_string());
         }
@@ -133,7 +134,9 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         None => serde_json::Value::Object(Default::default()),
     };
     for kv in &args.set {
-        let (k, v) = kv.split_once('=').ok_or_else(|| CliError::Set(kv.clone()))?;
+        let (k, v) = kv
+            .split_once('=')
+            .ok_or_else(|| CliError::Set(kv.clone()))?;
         let value = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.into()));
         set_dotted(&mut raw, k, value)?;
     }
@@ -195,7 +198,10 @@ mod tests {
         let mut v = serde_json::json!({});
         set_dotted(&mut v, "camera.azimuth_deg", serde_json::json!(200)).unwrap();
         set_dotted(&mut v, "width", serde_json::json!(64)).unwrap();
-        assert_eq!(v, serde_json::json!({"camera": {"azimuth_deg": 200}, "width": 64}));
+        assert_eq!(
+            v,
+            serde_json::json!({"camera": {"azimuth_deg": 200}, "width": 64})
+        );
         assert!(set_dotted(&mut v, "width.x", serde_json::json!(1)).is_err());
         assert!(set_dotted(&mut v, "a..b", serde_json::json!(1)).is_err());
     }

@@ -149,7 +149,11 @@ impl Config {
         }
         let cfg = Config {
             bind: pick!(bind),
-            data_dir: args.data_dir.clone().or(file.data_dir.clone()).unwrap_or(d.data_dir.clone()),
+            data_dir: args
+                .data_dir
+                .clone()
+                .or(file.data_dir.clone())
+                .unwrap_or(d.data_dir.clone()),
             max_body_bytes: pick!(max_body_bytes),
             max_input_cells: pick!(max_input_cells),
             max_output_pixels: pick!(max_output_pixels),

@@ -13,7 +13,10 @@ pub const PROBLEM_BASE: &str = "https://phenomena.dev/problems/";
 #[derive(Debug, thiserror::Error)]
 pub enum ApiError {
     #[error("{detail}")]
-    BadRequest { detail: String, field: Option<String> },
+    BadRequest {
+        detail: String,
+        field: Option<String>,
+    },
     #[error("{0}")]
     NotFound(String),
     #[error("{0}")]
@@ -25,7 +28,10 @@ pub enum ApiError {
     #[error("{0}")]
     InvalidParameter(ParamError),
     #[error("{detail}")]
-    InvalidInput { detail: String, field: Option<String> },
+    InvalidInput {
+        detail: String,
+        field: Option<String>,
+    },
     #[error("{detail}")]
     QueueFull { detail: String, retry_after: u64 },
     #[error("{0}")]
@@ -85,9 +91,11 @@ impl ApiError {
             ApiError::BadRequest { .. } => (StatusCode::BAD_REQUEST, "bad-request", "Bad request"),
             ApiError::NotFound(_) => (StatusCode::NOT_FOUND, "not-found", "Not found"),
             ApiError::Conflict(_) => (StatusCode::CONFLICT, "conflict", "Conflict"),
-            ApiError::PayloadTooLarge(_) => {
-                (StatusCode::PAYLOAD_TOO_LARGE, "too-large", "Payload too large")
-            }
+            ApiError::PayloadTooLarge(_) => (
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "too-large",
+                "Payload too large",
+            ),
             ApiError::UnsupportedMediaType(_) => (
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
                 "unsupported-format",

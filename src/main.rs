@@ -7,7 +7,11 @@ use phenomena::config::{Config, LogFormat, ServeArgs};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Debug, Parser)]
-#[command(name = "phenomena", version, about = "Rendering service for natural phenomena")]
+#[command(
+    name = "phenomena",
+    version,
+    about = "Rendering service for natural phenomena"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

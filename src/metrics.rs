@@ -23,15 +23,20 @@ impl Metrics {
         let registry = Registry::new_custom(Some("phenomena".into()), None)?;
         let m = Self {
             http_requests: IntCounterVec::new(
-                Opts::new("http_requests_total", "HTTP requests by route, method and status"),
+                Opts::new(
+                    "http_requests_total",
+                    "HTTP requests by route, method and status",
+                ),
                 &["route", "method", "status"],
             )?,
             http_duration: HistogramVec::new(
-                HistogramOpts::new("http_request_duration_seconds", "HTTP request latency by route")
-                    .buckets(vec![
-                        0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5,
-                        10.0,
-                    ]),
+                HistogramOpts::new(
+                    "http_request_duration_seconds",
+                    "HTTP request latency by route",
+                )
+                .buckets(vec![
+                    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 10.0,
+                ]),
                 &["route", "method"],
             )?,
             job_duration: HistogramVec::new(
@@ -73,4 +78,3 @@ impl Metrics {
         String::from_utf8(buf).unwrap_or_default()
     }
 }
-

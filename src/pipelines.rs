@@ -31,7 +31,11 @@ pub trait PipelineSet: Send + Sync + 'static {
     /// Name of the multipart part holding the input (`dem`, `mesh`, `volume`).
     fn input_part(&self, pipeline: &str) -> Option<&'static str>;
     /// Validates wire parameters and returns them resolved (defaults filled) as canonical JSON.
-    fn params(&self, pipeline: &str, raw: &serde_json::Value) -> Result<serde_json::Value, ParamError>;
+    fn params(
+        &self,
+        pipeline: &str,
+        raw: &serde_json::Value,
+    ) -> Result<serde_json::Value, ParamError>;
     /// Decodes the input enough to reject a corrupt, unsupported or oversize file up front.
     fn check_input(
         &self,
@@ -58,7 +62,8 @@ pub struct EnginePipelines {
 }
 
 fn kind(name: &str) -> Result<PipelineKind, ParamError> {
-    PipelineKind::parse(name).ok_or_else(|| ParamError::new("pipeline", format!("unknown pipeline {name:?}")))
+    PipelineKind::parse(name)
+        .ok_or_else(|| ParamError::new("pipeline", format!("unknown pipeline {name:?}")))
 }
 
 impl PipelineSet for EnginePipelines {

@@ -61,7 +61,12 @@ pub fn range<T: PartialOrd + std::fmt::Display + Copy>(
 
 /// Parses `#rrggbb` into sRGB bytes.
 pub fn parse_hex_color(field: &str, s: &str) -> Result<[u8; 3], ParamError> {
-    let err = || ParamError::new(field, format!("expected a colour like \"#a0b1c2\", got {s:?}"));
+    let err = || {
+        ParamError::new(
+            field,
+            format!("expected a colour like \"#a0b1c2\", got {s:?}"),
+        )
+    };
     let h = s.strip_prefix('#').ok_or_else(err)?;
     if h.len() != 6 || !h.is_ascii() {
         return Err(err());
@@ -92,9 +97,16 @@ pub fn camera_spec(c: WireCamera) -> Result<CameraSpec, ParamError> {
             let eye = finite3("camera.eye", eye)?;
             let target = finite3("camera.target", target)?;
             if eye == target {
-                return Err(ParamError::new("camera.target", "must differ from camera.eye"));
+                return Err(ParamError::new(
+                    "camera.target",
+                    "must differ from camera.eye",
+                ));
             }
-            Ok(CameraSpec::LookAt { eye, target, fov_deg })
+            Ok(CameraSpec::LookAt {
+                eye,
+                target,
+                fov_deg,
+            })
         }
         (Some(_), None) => Err(ParamError::new("camera.target", "required with camera.eye")),
         (None, Some(_)) => Err(ParamError::new("camera.eye", "required with camera.target")),

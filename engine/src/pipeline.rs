@@ -62,7 +62,11 @@ pub fn deserialize_params<T: serde::de::DeserializeOwned>(
     serde_path_to_error::deserialize(v).map_err(|e| {
         // The path names the offending field itself, unknown names included (`camera.fovdeg`).
         let path = e.path().to_string();
-        let field = if path == "." { "params".to_string() } else { path };
+        let field = if path == "." {
+            "params".to_string()
+        } else {
+            path
+        };
         let inner = e.into_inner().to_string();
         ParamError::new(field, inner)
     })

@@ -94,7 +94,10 @@ pub async fn list(
     let Query(q) = q.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let limit = q.limit.unwrap_or(20);
     if !(1..=100).contains(&limit) {
-        return Err(ApiError::bad_field("limit", "limit must be between 1 and 100"));
+        return Err(ApiError::bad_field(
+            "limit",
+            "limit must be between 1 and 100",
+        ));
     }
     if let Some(c) = &q.cursor {
         if !is_job_id(c) {
@@ -154,7 +157,10 @@ pub async fn events(
             if snap.status.is_terminal() {
                 let view = jobs.get(&id).map(JobView::from);
                 let data = serde_json::to_string(&view).unwrap_or_else(|_| "null".into());
-                return Some((Ok(Event::default().event("done").data(data)), (rx, true, true)));
+                return Some((
+                    Ok(Event::default().event("done").data(data)),
+                    (rx, true, true),
+                ));
             }
             let data = serde_json::to_string(&snap).unwrap_or_else(|_| "{}".into());
             Some((

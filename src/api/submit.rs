@@ -95,9 +95,10 @@ pub async fn submit(
     let (asset, bytes) = match input {
         Input::Upload { bytes, filename } => {
             let b = bytes.clone();
-            let (rec, _) = tokio::task::spawn_blocking(move || store.put_asset(&b, filename.as_deref()))
-                .await
-                .map_err(blocking_err)??;
+            let (rec, _) =
+                tokio::task::spawn_blocking(move || store.put_asset(&b, filename.as_deref()))
+                    .await
+                    .map_err(blocking_err)??;
             (rec, Some(bytes))
         }
         Input::Asset(rec) => (rec, None),
@@ -183,9 +184,9 @@ async fn read_multipart(
     req: Request,
     part: &'static str,
 ) -> Result<(serde_json::Value, Input), ApiError> {
-    let mut mp = Multipart::from_request(req, st)
-        .await
-        .map_err(|e| ApiError::bad_request(format!("malformed multipart body: {}", e.body_text())))?;
+    let mut mp = Multipart::from_request(req, st).await.map_err(|e| {
+        ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
+    })?;
     let mut params = None;
     let mut input = None;
     while let Some(field) = mp.next_field().await.map_err(multipart_err)? {
@@ -196,14 +197,20 @@ async fn read_multipart(
                 ApiError::bad_field("params", format!("the params part is not valid JSON: {e}"))
             })?;
             if !v.is_object() {
-                return Err(ApiError::bad_field("params", "params must be a JSON object"));
+                return Err(ApiError::bad_field(
+                    "params",
+                    "params must be a JSON object",
+                ));
             }
             params = Some(v);
         } else if name == part {
             let filename = field.file_name().map(sanitize_filename);
             let bytes = field.bytes().await.map_err(multipart_err)?;
             if bytes.is_empty() {
-                return Err(ApiError::bad_field(part, format!("the {part} part is empty")));
+                return Err(ApiError::bad_field(
+                    part,
+                    format!("the {part} part is empty"),
+                ));
             }
             input = Some(Input::Upload { bytes, filename });
         } else {
@@ -213,9 +220,8 @@ async fn read_multipart(
             ));
         }
     }
-    let input = input.ok_or_else(|| {
-        ApiError::bad_field(part, format!("missing the `{part}` file part"))
-    })?;
+    let input = input
+        .ok_or_else(|| ApiError::bad_field(part, format!("missing the `{part}` file part")))?;
     Ok((params.unwrap_or_else(empty_object), input))
 }
 
@@ -226,7 +232,10 @@ async fn read_json(st: &AppState, req: Request) -> Result<(serde_json::Value, In
     let j: JsonSubmit = serde_json::from_slice(&body)
         .map_err(|e| ApiError::bad_request(format!("invalid JSON body: {e}")))?;
     if !j.params.is_object() {
-        return Err(ApiError::bad_field("params", "params must be a JSON object"));
+        return Err(ApiError::bad_field(
+            "params",
+            "params must be a JSON object",
+        ));
     }
     let store = st.jobs.store().clone();
     let id = j.asset.clone();

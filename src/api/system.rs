@@ -27,17 +27,24 @@ pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value
         .await
         .unwrap_or(false);
     if !writable {
-        return Err(ApiError::Unavailable("the data directory is not writable".into()));
+        return Err(ApiError::Unavailable(
+            "the data directory is not writable".into(),
+        ));
     }
     let (queued, running) = st.jobs.load();
-    Ok(Json(json!({ "status": "ready", "queued": queued, "running": running })))
+    Ok(Json(
+        json!({ "status": "ready", "queued": queued, "running": running }),
+    ))
 }
 
 /// `GET /metrics`: Prometheus text exposition.
 pub async fn metrics(State(st): State<AppState>) -> Response {
     (
         StatusCode::OK,
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
         st.metrics.render(),
     )
         .into_response()

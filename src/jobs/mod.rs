@@ -179,12 +179,18 @@ impl Jobs {
                     rec.status = Status::Queued;
                     rec.progress = 0.0;
                     rec.stage = None;
-                    store.put_json(&store.root().join("jobs").join(format!("{}.json", rec.id)), &rec)?;
+                    store.put_json(
+                        &store.root().join("jobs").join(format!("{}.json", rec.id)),
+                        &rec,
+                    )?;
                 }
                 state.queue.push_back(rec.id.clone());
                 requeued += 1;
             }
-            if matches!(rec.status, Status::Queued | Status::Running | Status::Succeeded) {
+            if matches!(
+                rec.status,
+                Status::Queued | Status::Running | Status::Succeeded
+            ) {
                 state.by_key.insert(rec.key.clone(), rec.id.clone());
             }
             let (tx, _) = watch::channel(rec.snapshot());
@@ -192,10 +198,15 @@ impl Jobs {
                 tx,
                 cancel: AtomicU8::new(0),
             });
-            state.jobs.insert(rec.id.clone(), Entry { record: rec, live });
+            state
+                .jobs
+                .insert(rec.id.clone(), Entry { record: rec, live });
         }
         if requeued > 0 {
-            tracing::info!(requeued, "re-queued unfinished jobs from the data directory");
+            tracing::info!(
+                requeued,
+                "re-queued unfinished jobs from the data directory"
+            );
         }
         metrics.queue_depth.set(state.queue.len() as i64);
         let inner = Arc::new(Inner {
@@ -235,7 +246,11 @@ impl Jobs {
     }
 
     pub(crate) fn job_path(&self, id: &str) -> std::path::PathBuf {
-        self.inner.store.root().join("jobs").join(format!("{id}.json"))
+        self.inner
+            .store
+            .root()
+            .join("jobs")
+            .join(format!("{id}.json"))
     }
 
     /// Whether new work is being accepted (false during shutdown).
@@ -353,7 +368,12 @@ impl Jobs {
                 .map_or(all.len(), |p| p + 1),
             None => 0,
         };
-        let page: Vec<JobRecord> = all.iter().skip(start).take(limit).map(|e| view(e)).collect();
+        let page: Vec<JobRecord> = all
+            .iter()
+            .skip(start)
+            .take(limit)
+            .map(|e| view(e))
+            .collect();
         let next = (start + page.len() < all.len())
             .then(|| page.last().map(|r| r.id.clone()))
             .flatten();
@@ -425,7 +445,10 @@ impl Jobs {
             .filter(|e| e.record.status == Status::Running)
             .map(|e| e.live.clone())
             .collect();
-        tracing::warn!(jobs = lives.len(), "grace period over: interrupting running jobs");
+        tracing::warn!(
+            jobs = lives.len(),
+            "grace period over: interrupting running jobs"
+        );
         for l in &lives {
             l.raise(CancelReason::Shutdown);
         }
@@ -466,7 +489,10 @@ impl Jobs {
             entry.record.attempts += 1;
             entry.record.progress = 0.0;
             entry.record.stage = None;
-            entry.live.cancel.store(CancelReason::None as u8, Ordering::Release);
+            entry
+                .live
+                .cancel
+                .store(CancelReason::None as u8, Ordering::Release);
             let rec = entry.record.clone();
             let live = entry.live.clone();
             live.tx.send_replace(rec.snapshot());

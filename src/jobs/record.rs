@@ -120,5 +120,7 @@ pub fn new_job_id() -> String {
 
 /// True for a well-formed job id (guards every path built from a client-supplied id).
 pub fn is_job_id(s: &str) -> bool {
-    s.len() == 32 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    s.len() == 32
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }

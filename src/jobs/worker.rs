@@ -110,13 +110,21 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
         Ok(Err(e)) => {
             tracing::error!(job = %rec.id, error = %e, "input blob unreadable");
             rec.status = Status::Failed;
-            rec.error = Some(failure("input-missing", "Input unavailable", "the job's input could not be read from the store"));
+            rec.error = Some(failure(
+                "input-missing",
+                "Input unavailable",
+                "the job's input could not be read from the store",
+            ));
             return rec;
         }
         Err(e) => {
             tracing::error!(job = %rec.id, error = %e, "input read task failed");
             rec.status = Status::Failed;
-            rec.error = Some(failure("internal", "Internal error", "the job could not be run"));
+            rec.error = Some(failure(
+                "internal",
+                "Internal error",
+                "the job could not be run",
+            ));
             return rec;
         }
     };
@@ -198,7 +206,11 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
                 Ok(Err(e)) => {
                     tracing::error!(job = %rec.id, error = %e, "could not store outputs");
                     rec.status = Status::Failed;
-                    rec.error = Some(failure("storage", "Storage unavailable", "the outputs could not be stored"));
+                    rec.error = Some(failure(
+                        "storage",
+                        "Storage unavailable",
+                        "the outputs could not be stored",
+                    ));
                 }
                 Err(e) => {
                     tracing::error!(job = %rec.id, error = %e, "output store task failed");
@@ -213,7 +225,10 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
                 rec.error = Some(failure(
                     "time-limit",
                     "Time limit exceeded",
-                    format!("the job ran longer than the limit of {} s", timeout.as_secs()),
+                    format!(
+                        "the job ran longer than the limit of {} s",
+                        timeout.as_secs()
+                    ),
                 ));
                 tracing::warn!(job = %rec.id, "job exceeded its time limit");
             }
@@ -234,7 +249,11 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
         }
         Ok(Ok(Err(RunError::Param(e)))) => {
             rec.status = Status::Failed;
-            rec.error = Some(failure("invalid-parameter", "Invalid parameter", e.to_string()));
+            rec.error = Some(failure(
+                "invalid-parameter",
+                "Invalid parameter",
+                e.to_string(),
+            ));
         }
         Ok(Err(panic)) => {
             let msg = panic
@@ -244,12 +263,20 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
                 .unwrap_or_default();
             tracing::error!(job = %rec.id, panic = %msg, "pipeline panicked");
             rec.status = Status::Failed;
-            rec.error = Some(failure("internal", "Internal error", "the pipeline failed unexpectedly"));
+            rec.error = Some(failure(
+                "internal",
+                "Internal error",
+                "the pipeline failed unexpectedly",
+            ));
         }
         Err(_) => {
             tracing::error!(job = %rec.id, "pipeline task vanished");
             rec.status = Status::Failed;
-            rec.error = Some(failure("internal", "Internal error", "the pipeline failed unexpectedly"));
+            rec.error = Some(failure(
+                "internal",
+                "Internal error",
+                "the pipeline failed unexpectedly",
+            ));
         }
     }
     rec
@@ -268,7 +295,12 @@ pub(super) async fn sweeper(jobs: Jobs) {
         match res {
             Ok(Ok((expired, files, bytes))) => {
                 if expired > 0 || files > 0 {
-                    tracing::info!(expired_jobs = expired, blobs_removed = files, bytes_freed = bytes, "retention sweep");
+                    tracing::info!(
+                        expired_jobs = expired,
+                        blobs_removed = files,
+                        bytes_freed = bytes,
+                        "retention sweep"
+                    );
                 }
             }
             Ok(Err(e)) => tracing::warn!(error = %e, "retention sweep failed"),

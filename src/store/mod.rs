@@ -50,7 +50,9 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 
 /// True for a well-formed SHA-256 hex id (guards every path built from a client-supplied id).
 pub fn is_sha256_hex(s: &str) -> bool {
-    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    s.len() == 64
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
 
 /// The on-disk store. Cheap to clone (just paths); all methods are blocking file I/O, to be called

@@ -20,18 +20,37 @@ async fn submit_poll_and_download_with_etag() {
     let job: Value = resp.json().await.unwrap();
     assert_eq!(loc, format!("/v1/jobs/{}", id_of(&job)));
     assert!(["queued", "running"].contains(&job["status"].as_str().unwrap()));
-    assert_eq!(job["params"], json!({"stages": 3, "ms": 20, "panic": false}));
+    assert_eq!(
+        job["params"],
+        json!({"stages": 3, "ms": 20, "panic": false})
+    );
 
     let done = s.wait_done(&id_of(&job)).await;
     assert_eq!(done["status"], "succeeded", "{done}");
     assert_eq!(done["progress"], json!(1.0));
-    let stages: Vec<&str> = done["timings"].as_array().unwrap().iter().map(|t| t["stage"].as_str().unwrap()).collect();
+    let stages: Vec<&str> = done["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["stage"].as_str().unwrap())
+        .collect();
     assert_eq!(stages, ["stage0", "stage1", "stage2"]);
     assert!(done["timings"][0]["ms"].as_f64().unwrap() >= 15.0);
-    let out = done["outputs"].as_array().unwrap().iter().find(|o| o["name"] == "echo.txt").unwrap().clone();
+    let out = done["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["name"] == "echo.txt")
+        .unwrap()
+        .clone();
     assert_eq!(out["size"], json!(9));
 
-    let resp = s.client.get(s.url(out["url"].as_str().unwrap())).send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url(out["url"].as_str().unwrap()))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
     assert_eq!(resp.headers()["content-type"], "text/plain");
     assert_eq!(resp.headers()["content-length"], "9");
@@ -47,7 +66,12 @@ async fn submit_poll_and_download_with_etag() {
         .await
         .unwrap();
     assert_eq!(resp.status().as_u16(), 304);
-    let resp = s.client.get(s.url(&format!("/v1/jobs/{}/outputs/nope.png", id_of(&job)))).send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{}/outputs/nope.png", id_of(&job))))
+        .send()
+        .await
+        .unwrap();
     problem(resp, 404, "not-found").await;
 }
 
@@ -56,25 +80,54 @@ async fn prefer_wait_returns_the_finished_job() {
     let s = Server::start(|_| {}).await;
     let form = reqwest::multipart::Form::new()
         .text("params", json!({"stages": 2, "ms": 30}).to_string())
-        .part("data", reqwest::multipart::Part::bytes(b"w".to_vec()).file_name("w.bin"));
-    let resp = s.client.post(s.url("/v1/sleepy")).header("prefer", "wait=20").multipart(form).send().await.unwrap();
+        .part(
+            "data",
+            reqwest::multipart::Part::bytes(b"w".to_vec()).file_name("w.bin"),
+        );
+    let resp = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .header("prefer", "wait=20")
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
     assert_eq!(resp.headers()["preference-applied"], "wait=20");
     let job: Value = resp.json().await.unwrap();
     assert_eq!(job["status"], "succeeded");
 
     // GET with a wait on an already-finished job answers at once.
-    let resp = s.client.get(s.url(&format!("/v1/jobs/{}", id_of(&job)))).header("prefer", "wait=5").send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{}", id_of(&job))))
+        .header("prefer", "wait=5")
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
 }
 
 #[tokio::test]
 async fn events_stream_progress_then_done() {
     let s = Server::start(|_| {}).await;
-    let job: Value = s.sleepy(json!({"stages": 4, "ms": 60}), b"sse").await.json().await.unwrap();
-    let resp = s.client.get(s.url(&format!("/v1/jobs/{}/events", id_of(&job)))).send().await.unwrap();
+    let job: Value = s
+        .sleepy(json!({"stages": 4, "ms": 60}), b"sse")
+        .await
+        .json()
+        .await
+        .unwrap();
+    let resp = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{}/events", id_of(&job))))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
-    assert!(resp.headers()["content-type"].to_str().unwrap().starts_with("text/event-stream"));
+    assert!(resp.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/event-stream"));
     let mut body = String::new();
     let mut stream = resp.bytes_stream();
     let read = tokio::time::timeout(Duration::from_secs(20), async {
@@ -91,10 +144,20 @@ async fn events_stream_progress_then_done() {
             Some((ev, serde_json::from_str(data).unwrap()))
         })
         .collect();
-    let progress: Vec<&Value> = events.iter().filter(|(e, _)| *e == "progress").map(|(_, d)| d).collect();
+    let progress: Vec<&Value> = events
+        .iter()
+        .filter(|(e, _)| *e == "progress")
+        .map(|(_, d)| d)
+        .collect();
     assert!(progress.len() >= 2, "{body}");
-    let fractions: Vec<f64> = progress.iter().map(|p| p["progress"].as_f64().unwrap()).collect();
-    assert!(fractions.windows(2).all(|w| w[0] <= w[1]), "progress never goes back: {fractions:?}");
+    let fractions: Vec<f64> = progress
+        .iter()
+        .map(|p| p["progress"].as_f64().unwrap())
+        .collect();
+    assert!(
+        fractions.windows(2).all(|w| w[0] <= w[1]),
+        "progress never goes back: {fractions:?}"
+    );
     let (last, data) = events.last().unwrap();
     assert_eq!(*last, "done");
     assert_eq!(data["status"], "succeeded");
@@ -104,8 +167,18 @@ async fn events_stream_progress_then_done() {
 #[tokio::test]
 async fn cancel_running_and_queued_jobs() {
     let s = Server::start(|c| c.concurrency = 1).await;
-    let a: Value = s.sleepy(json!({"stages": 100, "ms": 50}), b"a").await.json().await.unwrap();
-    let b: Value = s.sleepy(json!({"stages": 100, "ms": 50}), b"b").await.json().await.unwrap();
+    let a: Value = s
+        .sleepy(json!({"stages": 100, "ms": 50}), b"a")
+        .await
+        .json()
+        .await
+        .unwrap();
+    let b: Value = s
+        .sleepy(json!({"stages": 100, "ms": 50}), b"b")
+        .await
+        .json()
+        .await
+        .unwrap();
     // Wait until `a` runs.
     for _ in 0..500 {
         if s.job(&id_of(&a)).await["status"] == "running" {
@@ -114,38 +187,86 @@ async fn cancel_running_and_queued_jobs() {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     // The queued one is canceled at once.
-    let resp = s.client.delete(s.url(&format!("/v1/jobs/{}", id_of(&b)))).send().await.unwrap();
+    let resp = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{}", id_of(&b))))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
     assert_eq!(resp.json::<Value>().await.unwrap()["status"], "canceled");
     // The running one at its next checkpoint.
-    let resp = s.client.delete(s.url(&format!("/v1/jobs/{}", id_of(&a)))).send().await.unwrap();
+    let resp = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{}", id_of(&a))))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 202);
     let done = s.wait_done(&id_of(&a)).await;
     assert_eq!(done["status"], "canceled");
     assert!(done["outputs"].as_array().unwrap().is_empty());
     // Canceling a finished job conflicts; an unknown id is 404.
-    let resp = s.client.delete(s.url(&format!("/v1/jobs/{}", id_of(&a)))).send().await.unwrap();
+    let resp = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{}", id_of(&a))))
+        .send()
+        .await
+        .unwrap();
     problem(resp, 409, "conflict").await;
-    let resp = s.client.delete(s.url(&format!("/v1/jobs/{}", "0".repeat(32)))).send().await.unwrap();
+    let resp = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{}", "0".repeat(32))))
+        .send()
+        .await
+        .unwrap();
     problem(resp, 404, "not-found").await;
     // A canceled request is not reused: the same request runs again.
-    let again: Value = s.sleepy(json!({"stages": 100, "ms": 50}), b"b").await.json().await.unwrap();
+    let again: Value = s
+        .sleepy(json!({"stages": 100, "ms": 50}), b"b")
+        .await
+        .json()
+        .await
+        .unwrap();
     assert_ne!(again["id"], b["id"]);
 }
 
 #[tokio::test]
 async fn assets_upload_once_and_jobs_name_them() {
     let s = Server::start(|_| {}).await;
-    let resp = s.client.post(s.url("/v1/assets?filename=a.bin")).body("asset bytes").send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/assets?filename=a.bin"))
+        .body("asset bytes")
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 201);
     let asset: Value = resp.json().await.unwrap();
     let id = asset["id"].as_str().unwrap().to_string();
     assert_eq!(id, phenomena::store::sha256_hex(b"asset bytes"));
     assert_eq!(asset["filename"], "a.bin");
-    let resp = s.client.post(s.url("/v1/assets")).body("asset bytes").send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/assets"))
+        .body("asset bytes")
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 200);
-    assert_eq!(resp.headers()["location"].to_str().unwrap(), format!("/v1/assets/{id}"));
-    let got: Value = s.client.get(s.url(&format!("/v1/assets/{id}"))).send().await.unwrap().json().await.unwrap();
+    assert_eq!(
+        resp.headers()["location"].to_str().unwrap(),
+        format!("/v1/assets/{id}")
+    );
+    let got: Value = s
+        .client
+        .get(s.url(&format!("/v1/assets/{id}")))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(got["size"], json!(11));
 
     let resp = s
@@ -160,22 +281,45 @@ async fn assets_upload_once_and_jobs_name_them() {
     let job: Value = resp.json().await.unwrap();
     assert_eq!(job["status"], "succeeded");
     assert_eq!(job["input"]["asset"], json!(id));
-    let echo = s.client.get(s.url(&format!("/v1/jobs/{}/outputs/echo.txt", id_of(&job)))).send().await.unwrap();
+    let echo = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{}/outputs/echo.txt", id_of(&job))))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(echo.bytes().await.unwrap().as_ref(), b"asset bytes");
 
-    let resp = s.client.post(s.url("/v1/sleepy")).json(&json!({"asset": "f".repeat(64)})).send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .json(&json!({"asset": "f".repeat(64)}))
+        .send()
+        .await
+        .unwrap();
     let p = problem(resp, 422, "invalid-input").await;
     assert_eq!(p["field"], "asset");
-    let resp = s.client.get(s.url("/v1/assets/..%2F..%2Fetc")).send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url("/v1/assets/..%2F..%2Fetc"))
+        .send()
+        .await
+        .unwrap();
     problem(resp, 404, "not-found").await;
 }
 
 #[tokio::test]
 async fn identical_requests_reuse_the_job() {
     let s = Server::start(|_| {}).await;
-    let a: Value = s.sleepy(json!({"stages": 2, "ms": 50}), b"same").await.json().await.unwrap();
+    let a: Value = s
+        .sleepy(json!({"stages": 2, "ms": 50}), b"same")
+        .await
+        .json()
+        .await
+        .unwrap();
     // Same input and params (spelled differently: defaults explicit) while running: joins it.
-    let resp = s.sleepy(json!({"ms": 50, "stages": 2, "panic": false}), b"same").await;
+    let resp = s
+        .sleepy(json!({"ms": 50, "stages": 2, "panic": false}), b"same")
+        .await;
     assert_eq!(resp.status().as_u16(), 202);
     assert_eq!(resp.json::<Value>().await.unwrap()["id"], a["id"]);
     s.wait_done(&id_of(&a)).await;
@@ -186,15 +330,41 @@ async fn identical_requests_reuse_the_job() {
     assert_eq!(again["id"], a["id"]);
     assert_eq!(again["status"], "succeeded");
     // Different params or input: a new job.
-    let b: Value = s.sleepy(json!({"stages": 2, "ms": 51}), b"same").await.json().await.unwrap();
+    let b: Value = s
+        .sleepy(json!({"stages": 2, "ms": 51}), b"same")
+        .await
+        .json()
+        .await
+        .unwrap();
     assert_ne!(b["id"], a["id"]);
-    let c: Value = s.sleepy(json!({"stages": 2, "ms": 50}), b"other").await.json().await.unwrap();
+    let c: Value = s
+        .sleepy(json!({"stages": 2, "ms": 50}), b"other")
+        .await
+        .json()
+        .await
+        .unwrap();
     assert_ne!(c["id"], a["id"]);
-    let list: Value = s.client.get(s.url("/v1/jobs?limit=2")).send().await.unwrap().json().await.unwrap();
+    let list: Value = s
+        .client
+        .get(s.url("/v1/jobs?limit=2"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(list["jobs"].as_array().unwrap().len(), 2);
     assert_eq!(list["jobs"][0]["id"], c["id"], "newest first");
     let cursor = list["next_cursor"].as_str().unwrap();
-    let rest: Value = s.client.get(s.url(&format!("/v1/jobs?limit=2&cursor={cursor}"))).send().await.unwrap().json().await.unwrap();
+    let rest: Value = s
+        .client
+        .get(s.url(&format!("/v1/jobs?limit=2&cursor={cursor}")))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(rest["jobs"].as_array().unwrap().len(), 1);
     assert_eq!(rest["jobs"][0]["id"], a["id"]);
     assert!(rest.get("next_cursor").is_none());
@@ -207,7 +377,12 @@ async fn a_full_queue_answers_429_with_retry_after() {
         c.queue_capacity = 1;
     })
     .await;
-    let a: Value = s.sleepy(json!({"stages": 100, "ms": 20}), b"1").await.json().await.unwrap();
+    let a: Value = s
+        .sleepy(json!({"stages": 100, "ms": 20}), b"1")
+        .await
+        .json()
+        .await
+        .unwrap();
     for _ in 0..500 {
         if s.job(&id_of(&a)).await["status"] == "running" {
             break;
@@ -222,7 +397,11 @@ async fn a_full_queue_answers_429_with_retry_after() {
     // Every accepted job still completes (cancel to keep the test short).
     let b: Value = b.json().await.unwrap();
     for j in [&a, &b] {
-        s.client.delete(s.url(&format!("/v1/jobs/{}", id_of(j)))).send().await.unwrap();
+        s.client
+            .delete(s.url(&format!("/v1/jobs/{}", id_of(j))))
+            .send()
+            .await
+            .unwrap();
     }
     assert_eq!(s.wait_done(&id_of(&a)).await["status"], "canceled");
 }
@@ -231,75 +410,154 @@ async fn a_full_queue_answers_429_with_retry_after() {
 async fn bad_requests_get_problem_json() {
     let s = Server::start(|c| c.max_body_bytes = 4096).await;
     // Not multipart or JSON.
-    let resp = s.client.post(s.url("/v1/sleepy")).header("content-type", "text/plain").body("x").send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .header("content-type", "text/plain")
+        .body("x")
+        .send()
+        .await
+        .unwrap();
     problem(resp, 415, "unsupported-format").await;
     // Missing the input part.
     let form = reqwest::multipart::Form::new().text("params", "{}");
-    let resp = s.client.post(s.url("/v1/sleepy")).multipart(form).send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
     assert_eq!(problem(resp, 400, "bad-request").await["field"], "data");
     // Params that are not JSON.
     let form = reqwest::multipart::Form::new()
         .text("params", "{nope")
         .part("data", reqwest::multipart::Part::bytes(b"x".to_vec()));
-    let resp = s.client.post(s.url("/v1/sleepy")).multipart(form).send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
     assert_eq!(problem(resp, 400, "bad-request").await["field"], "params");
     // Unknown pipeline.
     let resp = s.sleepy(json!({}), b"x").await;
     assert_eq!(resp.status().as_u16(), 202);
-    let resp = s.submit("snowy-terrain", "dem", json!({}), b"x".to_vec(), "x.asc").await;
+    let resp = s
+        .submit("snowy-terrain", "dem", json!({}), b"x".to_vec(), "x.asc")
+        .await;
     let p = problem(resp, 404, "not-found").await;
-    assert!(p["detail"].as_str().unwrap().contains("snow-terrain"), "{p}");
+    assert!(
+        p["detail"].as_str().unwrap().contains("snow-terrain"),
+        "{p}"
+    );
     // Unknown and out-of-range parameters.
     let resp = s.sleepy(json!({"stagez": 1}), b"x").await;
-    assert_eq!(problem(resp, 422, "invalid-parameter").await["field"], "stagez");
+    assert_eq!(
+        problem(resp, 422, "invalid-parameter").await["field"],
+        "stagez"
+    );
     let resp = s.sleepy(json!({"stages": 1000}), b"x").await;
-    assert_eq!(problem(resp, 422, "invalid-parameter").await["field"], "stages");
+    assert_eq!(
+        problem(resp, 422, "invalid-parameter").await["field"],
+        "stages"
+    );
     let resp = s.sleepy(json!({"stages": "two"}), b"x").await;
-    assert_eq!(problem(resp, 422, "invalid-parameter").await["field"], "stages");
+    assert_eq!(
+        problem(resp, 422, "invalid-parameter").await["field"],
+        "stages"
+    );
     // A corrupt input.
     let resp = s.sleepy(json!({}), b"corrupt bytes").await;
     assert_eq!(problem(resp, 422, "invalid-input").await["field"], "data");
     // An oversize body.
     let resp = s.sleepy(json!({}), &vec![7u8; 10_000]).await;
     problem(resp, 413, "too-large").await;
-    let resp = s.client.post(s.url("/v1/assets")).body(vec![1u8; 10_000]).send().await.unwrap();
+    let resp = s
+        .client
+        .post(s.url("/v1/assets"))
+        .body(vec![1u8; 10_000])
+        .send()
+        .await
+        .unwrap();
     problem(resp, 413, "too-large").await;
     // Unknown routes and methods.
     let resp = s.client.get(s.url("/v2/whatever")).send().await.unwrap();
     problem(resp, 404, "not-found").await;
-    let resp = s.client.get(s.url("/v1/jobs/not-a-job")).send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url("/v1/jobs/not-a-job"))
+        .send()
+        .await
+        .unwrap();
     problem(resp, 404, "not-found").await;
     let resp = s.client.put(s.url("/v1/jobs")).send().await.unwrap();
     assert_eq!(resp.status().as_u16(), 405);
-    let resp = s.client.get(s.url("/v1/jobs?limit=0")).send().await.unwrap();
+    let resp = s
+        .client
+        .get(s.url("/v1/jobs?limit=0"))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(problem(resp, 400, "bad-request").await["field"], "limit");
 }
 
 #[tokio::test]
 async fn a_panicking_pipeline_fails_only_its_job() {
     let s = Server::start(|c| c.concurrency = 1).await;
-    let bad: Value = s.sleepy(json!({"panic": true}), b"p").await.json().await.unwrap();
+    let bad: Value = s
+        .sleepy(json!({"panic": true}), b"p")
+        .await
+        .json()
+        .await
+        .unwrap();
     let good: Value = s.sleepy(json!({"ms": 5}), b"g").await.json().await.unwrap();
     let bad = s.wait_done(&id_of(&bad)).await;
     assert_eq!(bad["status"], "failed");
-    assert_eq!(bad["error"]["type"], "https://phenomena.dev/problems/internal");
-    assert!(!bad["error"]["detail"].as_str().unwrap().contains("asked to panic"), "no internals leak");
+    assert_eq!(
+        bad["error"]["type"],
+        "https://phenomena.dev/problems/internal"
+    );
+    assert!(
+        !bad["error"]["detail"]
+            .as_str()
+            .unwrap()
+            .contains("asked to panic"),
+        "no internals leak"
+    );
     assert_eq!(s.wait_done(&id_of(&good)).await["status"], "succeeded");
 }
 
 #[tokio::test]
 async fn the_time_limit_fails_a_long_job() {
     let s = Server::start(|c| c.job_timeout_secs = 1).await;
-    let j: Value = s.sleepy(json!({"ms": 10_000}), b"slow").await.json().await.unwrap();
+    let j: Value = s
+        .sleepy(json!({"ms": 10_000}), b"slow")
+        .await
+        .json()
+        .await
+        .unwrap();
     let done = s.wait_done(&id_of(&j)).await;
     assert_eq!(done["status"], "failed");
-    assert_eq!(done["error"]["type"], "https://phenomena.dev/problems/time-limit");
+    assert_eq!(
+        done["error"]["type"],
+        "https://phenomena.dev/problems/time-limit"
+    );
 }
 
 #[tokio::test]
 async fn health_readiness_and_metrics() {
     let s = Server::start(|_| {}).await;
-    let h: Value = s.client.get(s.url("/healthz")).send().await.unwrap().json().await.unwrap();
+    let h: Value = s
+        .client
+        .get(s.url("/healthz"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(h, json!({"status": "ok"}));
     let r = s.client.get(s.url("/readyz")).send().await.unwrap();
     assert_eq!(r.status().as_u16(), 200);
@@ -307,7 +565,10 @@ async fn health_readiness_and_metrics() {
     let job: Value = s.sleepy(json!({"ms": 2}), b"m").await.json().await.unwrap();
     s.wait_done(&id_of(&job)).await;
     let m = s.client.get(s.url("/metrics")).send().await.unwrap();
-    assert!(m.headers()["content-type"].to_str().unwrap().starts_with("text/plain"));
+    assert!(m.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/plain"));
     let text = m.text().await.unwrap();
     for needle in [
         "phenomena_http_requests_total{method=\"POST\",route=\"/v1/sleepy\",status=\"202\"}",
@@ -322,7 +583,10 @@ async fn health_readiness_and_metrics() {
     }
     let spec = s.client.get(s.url("/openapi.yaml")).send().await.unwrap();
     assert_eq!(spec.headers()["content-type"], "application/yaml");
-    assert_eq!(spec.text().await.unwrap(), std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/openapi.yaml")).unwrap());
+    assert_eq!(
+        spec.text().await.unwrap(),
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/openapi.yaml")).unwrap()
+    );
 }
 
 #[tokio::test]
@@ -332,8 +596,18 @@ async fn graceful_shutdown_requeues_and_restart_finishes() {
         c.concurrency = 1;
     })
     .await;
-    let j: Value = s.sleepy(json!({"stages": 10, "ms": 100}), b"restart").await.json().await.unwrap();
-    let queued: Value = s.sleepy(json!({"ms": 1}), b"second").await.json().await.unwrap();
+    let j: Value = s
+        .sleepy(json!({"stages": 10, "ms": 100}), b"restart")
+        .await
+        .json()
+        .await
+        .unwrap();
+    let queued: Value = s
+        .sleepy(json!({"ms": 1}), b"second")
+        .await
+        .json()
+        .await
+        .unwrap();
     for _ in 0..500 {
         if s.job(&id_of(&j)).await["status"] == "running" {
             break;
@@ -346,4 +620,76 @@ async fn graceful_shutdown_requeues_and_restart_finishes() {
     assert_eq!(done["status"], "succeeded");
     assert_eq!(done["attempts"], json!(2));
     assert_eq!(s.wait_done(&id_of(&queued)).await["status"], "succeeded");
+}
+
+#[tokio::test]
+async fn retention_expires_finished_jobs_and_reclaims_blobs() {
+    let s = Server::start(|c| {
+        c.retention_secs = 0;
+        c.sweep_interval_secs = 1;
+    })
+    .await;
+    let job: Value = s
+        .client
+        .post(s.url("/v1/sleepy"))
+        .header("prefer", "wait=20")
+        .multipart(reqwest::multipart::Form::new().text("params", "{}").part(
+            "data",
+            reqwest::multipart::Part::bytes(b"expiring".to_vec()),
+        ))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(job["status"], "succeeded");
+    let blob_count = |dir: &std::path::Path| walk(&dir.join("blobs"));
+    fn walk(p: &std::path::Path) -> usize {
+        std::fs::read_dir(p)
+            .map(|rd| {
+                rd.flatten()
+                    .map(|e| {
+                        if e.path().is_dir() {
+                            walk(&e.path())
+                        } else {
+                            1
+                        }
+                    })
+                    .sum()
+            })
+            .unwrap_or(0)
+    }
+    assert!(blob_count(s.dir.path()) >= 2);
+    let t0 = std::time::Instant::now();
+    loop {
+        let resp = s
+            .client
+            .get(s.url(&format!("/v1/jobs/{}", id_of(&job))))
+            .send()
+            .await
+            .unwrap();
+        if resp.status().as_u16() == 404 {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the job was not expired"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(!s
+        .dir
+        .path()
+        .join(format!("jobs/{}.json", id_of(&job)))
+        .exists());
+    // The sweep that removed the job reclaims its blobs in the same pass or the next.
+    let t0 = std::time::Instant::now();
+    while blob_count(s.dir.path()) > 0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "blobs were not reclaimed"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
 }

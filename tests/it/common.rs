@@ -44,7 +44,13 @@ impl PipelineSet for Sleepy {
         }
         Ok(serde_json::to_value(p).unwrap())
     }
-    fn check_input(&self, _: &str, _: &Value, input: &[u8], _: Option<&str>) -> Result<(), InputError> {
+    fn check_input(
+        &self,
+        _: &str,
+        _: &Value,
+        input: &[u8],
+        _: Option<&str>,
+    ) -> Result<(), InputError> {
         if input.starts_with(b"corrupt") {
             return Err(InputError::Corrupt {
                 format: "sleepy",
@@ -78,7 +84,11 @@ impl PipelineSet for Sleepy {
         }
         Ok(vec![
             Output::new("echo.txt", "text/plain", input.to_vec()),
-            Output::new("params.json", "application/json", params.to_string().into_bytes()),
+            Output::new(
+                "params.json",
+                "application/json",
+                params.to_string().into_bytes(),
+            ),
         ])
     }
 }
@@ -96,13 +106,38 @@ impl PipelineSet for WithSleepy {
         Sleepy.input_part(name).or_else(|| self.0.input_part(name))
     }
     fn params(&self, name: &str, raw: &Value) -> Result<Value, ParamError> {
-        if name == "sleepy" { Sleepy.params(name, raw) } else { self.0.params(name, raw) }
+        if name == "sleepy" {
+            Sleepy.params(name, raw)
+        } else {
+            self.0.params(name, raw)
+        }
     }
-    fn check_input(&self, name: &str, p: &Value, input: &[u8], f: Option<&str>) -> Result<(), InputError> {
-        if name == "sleepy" { Sleepy.check_input(name, p, input, f) } else { self.0.check_input(name, p, input, f) }
+    fn check_input(
+        &self,
+        name: &str,
+        p: &Value,
+        input: &[u8],
+        f: Option<&str>,
+    ) -> Result<(), InputError> {
+        if name == "sleepy" {
+            Sleepy.check_input(name, p, input, f)
+        } else {
+            self.0.check_input(name, p, input, f)
+        }
     }
-    fn run(&self, name: &str, p: &Value, input: &[u8], f: Option<&str>, ctl: &dyn Control) -> Result<Vec<Output>, RunError> {
-        if name == "sleepy" { Sleepy.run(name, p, input, f, ctl) } else { self.0.run(name, p, input, f, ctl) }
+    fn run(
+        &self,
+        name: &str,
+        p: &Value,
+        input: &[u8],
+        f: Option<&str>,
+        ctl: &dyn Control,
+    ) -> Result<Vec<Output>, RunError> {
+        if name == "sleepy" {
+            Sleepy.run(name, p, input, f, ctl)
+        } else {
+            self.0.run(name, p, input, f, ctl)
+        }
     }
 }
 
@@ -136,7 +171,8 @@ impl Server {
         let mut cfg = test_config(dir.path());
         tweak(&mut cfg);
         let limits = cfg.limits();
-        let state = phenomena::state_with(cfg, Arc::new(WithSleepy(EnginePipelines { limits }))).unwrap();
+        let state =
+            phenomena::state_with(cfg, Arc::new(WithSleepy(EnginePipelines { limits }))).unwrap();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
@@ -168,10 +204,20 @@ impl Server {
     }
 
     /// Submits a multipart job.
-    pub async fn submit(&self, pipeline: &str, part: &str, params: Value, input: Vec<u8>, filename: &str) -> reqwest::Response {
+    pub async fn submit(
+        &self,
+        pipeline: &str,
+        part: &str,
+        params: Value,
+        input: Vec<u8>,
+        filename: &str,
+    ) -> reqwest::Response {
         let form = reqwest::multipart::Form::new()
             .text("params", params.to_string())
-            .part(part.to_string(), reqwest::multipart::Part::bytes(input).file_name(filename.to_string()));
+            .part(
+                part.to_string(),
+                reqwest::multipart::Part::bytes(input).file_name(filename.to_string()),
+            );
         self.client
             .post(self.url(&format!("/v1/{pipeline}")))
             .multipart(form)
@@ -181,11 +227,19 @@ impl Server {
     }
 
     pub async fn sleepy(&self, params: Value, input: &[u8]) -> reqwest::Response {
-        self.submit("sleepy", "data", params, input.to_vec(), "x.bin").await
+        self.submit("sleepy", "data", params, input.to_vec(), "x.bin")
+            .await
     }
 
     pub async fn job(&self, id: &str) -> Value {
-        self.client.get(self.url(&format!("/v1/jobs/{id}"))).send().await.unwrap().json().await.unwrap()
+        self.client
+            .get(self.url(&format!("/v1/jobs/{id}")))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap()
     }
 
     /// Polls until the job is finished (30 s at most).
@@ -209,7 +263,11 @@ pub async fn problem(resp: reqwest::Response, status: u16, kind: &str) -> Value 
         "application/problem+json"
     );
     let body: Value = resp.json().await.unwrap();
-    assert_eq!(body["type"], json!(format!("https://phenomena.dev/problems/{kind}")), "{body}");
+    assert_eq!(
+        body["type"],
+        json!(format!("https://phenomena.dev/problems/{kind}")),
+        "{body}"
+    );
     assert_eq!(body["status"], json!(status));
     assert!(!body["detail"].as_str().unwrap().is_empty());
     body
@@ -217,5 +275,7 @@ pub async fn problem(resp: reqwest::Response, status: u16, kind: &str) -> Value 
 
 /// Path of a file in the shared real-data directory.
 pub fn data(rel: &str) -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(rel)
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel)
 }

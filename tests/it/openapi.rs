@@ -7,7 +7,8 @@ use serde_json::{json, Value};
 use crate::common::{data, Server};
 
 fn spec() -> Value {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/openapi.yaml")).unwrap();
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/openapi.yaml")).unwrap();
     serde_yaml::from_str(&text).unwrap()
 }
 
@@ -16,7 +17,11 @@ fn deref<'a>(spec: &'a Value, v: &'a Value) -> &'a Value {
     match v.get("$ref").and_then(Value::as_str) {
         Some(r) => {
             let ptr = r.strip_prefix('#').unwrap();
-            deref(spec, spec.pointer(ptr).unwrap_or_else(|| panic!("dangling $ref {r}")))
+            deref(
+                spec,
+                spec.pointer(ptr)
+                    .unwrap_or_else(|| panic!("dangling $ref {r}")),
+            )
         }
         None => v,
     }
@@ -40,22 +45,32 @@ fn spec_routes(spec: &Value) -> Vec<(String, String)> {
 fn check(spec: &Value, method: &str, path: &str, status: u16, ctype: &str, body: &Value) {
     let op = &spec["paths"][path][method];
     assert!(op.is_object(), "{method} {path} is not in the spec");
-    let resp = op["responses"]
-        .get(status.to_string())
-        .unwrap_or_else(|| panic!("{method} {path} answered {status}, which the spec does not list"));
+    let resp = op["responses"].get(status.to_string()).unwrap_or_else(|| {
+        panic!("{method} {path} answered {status}, which the spec does not list")
+    });
     let resp = deref(spec, resp);
     let media = ctype.split(';').next().unwrap().trim();
-    let content = resp["content"]
-        .get(media)
-        .unwrap_or_else(|| panic!("{method} {path} {status}: content type {media} not in the spec"));
+    let content = resp["content"].get(media).unwrap_or_else(|| {
+        panic!("{method} {path} {status}: content type {media} not in the spec")
+    });
     let schema = deref(spec, &content["schema"]).clone();
     // Resolve `$ref`s against the whole document: validate with the spec as the root schema.
     let mut root = spec.clone();
-    root.as_object_mut().unwrap().insert("$ref".into(), json!("#/$defs/__target"));
-    root.as_object_mut().unwrap().insert("$defs".into(), json!({ "__target": schema }));
+    root.as_object_mut()
+        .unwrap()
+        .insert("$ref".into(), json!("#/$defs/__target"));
+    root.as_object_mut()
+        .unwrap()
+        .insert("$defs".into(), json!({ "__target": schema }));
     let validator = jsonschema::validator_for(&root).unwrap();
-    let errors: Vec<String> = validator.iter_errors(body).map(|e| format!("{} at {}", e, e.instance_path)).collect();
-    assert!(errors.is_empty(), "{method} {path} {status} violates the spec: {errors:?}\n{body}");
+    let errors: Vec<String> = validator
+        .iter_errors(body)
+        .map(|e| format!("{} at {}", e, e.instance_path))
+        .collect();
+    assert!(
+        errors.is_empty(),
+        "{method} {path} {status} violates the spec: {errors:?}\n{body}"
+    );
 }
 
 #[tokio::test]
@@ -77,12 +92,17 @@ async fn spec_routes_equal_served_routes() {
         let concrete = path
             .replace("{id}", &"0".repeat(32))
             .replace("{name}", "render.png");
-        let req = s.client.request(method.to_uppercase().parse().unwrap(), s.url(&concrete));
+        let req = s
+            .client
+            .request(method.to_uppercase().parse().unwrap(), s.url(&concrete));
         let resp = req.send().await.unwrap();
         let status = resp.status().as_u16();
         assert_ne!(status, 405, "{method} {path}");
         let text = resp.text().await.unwrap();
-        assert!(!text.contains("no route for"), "{method} {path} is not routed: {text}");
+        assert!(
+            !text.contains("no route for"),
+            "{method} {path} is not routed: {text}"
+        );
     }
 }
 
@@ -94,27 +114,79 @@ async fn responses_match_the_spec() {
 
     let r = s.client.get(s.url("/healthz")).send().await.unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/healthz", r.status().as_u16(), &ct, &r.json().await.unwrap());
+    check(
+        &spec,
+        "get",
+        "/healthz",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
     let r = s.client.get(s.url("/readyz")).send().await.unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/readyz", r.status().as_u16(), &ct, &r.json().await.unwrap());
+    check(
+        &spec,
+        "get",
+        "/readyz",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
 
     // Assets.
-    let r = s.client.post(s.url("/v1/assets?filename=volcano.asc")).body(dem.clone()).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url("/v1/assets?filename=volcano.asc"))
+        .body(dem.clone())
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     let asset: Value = r.json().await.unwrap();
     check(&spec, "post", "/v1/assets", status, &ct, &asset);
-    let r = s.client.get(s.url(asset["url"].as_str().unwrap())).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(asset["url"].as_str().unwrap()))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/v1/assets/{id}", r.status().as_u16(), &ct, &r.json().await.unwrap());
-    let r = s.client.get(s.url(&format!("/v1/assets/{}", "a".repeat(64)))).send().await.unwrap();
+    check(
+        &spec,
+        "get",
+        "/v1/assets/{id}",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/assets/{}", "a".repeat(64))))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/v1/assets/{id}", r.status().as_u16(), &ct, &r.json().await.unwrap());
+    check(
+        &spec,
+        "get",
+        "/v1/assets/{id}",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
 
     // A real snow-terrain job, small.
     let params = json!({"width": 64, "height": 48, "mesh_max_vertices": 1000});
-    let r = s.submit("snow-terrain", "dem", params.clone(), dem.clone(), "volcano.asc").await;
+    let r = s
+        .submit(
+            "snow-terrain",
+            "dem",
+            params.clone(),
+            dem.clone(),
+            "volcano.asc",
+        )
+        .await;
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     let job: Value = r.json().await.unwrap();
@@ -122,7 +194,14 @@ async fn responses_match_the_spec() {
     let id = job["id"].as_str().unwrap().to_string();
     let done = s.wait_done(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
-    check(&spec, "get", "/v1/jobs/{id}", 200, "application/json", &done);
+    check(
+        &spec,
+        "get",
+        "/v1/jobs/{id}",
+        200,
+        "application/json",
+        &done,
+    );
     let r = s
         .client
         .post(s.url("/v1/snow-terrain"))
@@ -133,49 +212,148 @@ async fn responses_match_the_spec() {
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     let reused: Value = r.json().await.unwrap();
-    assert_eq!(reused["id"], json!(id), "the JSON form reuses the multipart job's result");
+    assert_eq!(
+        reused["id"],
+        json!(id),
+        "the JSON form reuses the multipart job's result"
+    );
     check(&spec, "post", "/v1/snow-terrain", status, &ct, &reused);
 
-    let r = s.client.get(s.url("/v1/jobs?limit=5")).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url("/v1/jobs?limit=5"))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/v1/jobs", r.status().as_u16(), &ct, &r.json().await.unwrap());
-    let r = s.client.delete(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    check(
+        &spec,
+        "get",
+        "/v1/jobs",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "delete", "/v1/jobs/{id}", r.status().as_u16(), &ct, &r.json().await.unwrap());
+    check(
+        &spec,
+        "delete",
+        "/v1/jobs/{id}",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
 
     // Every output is downloadable with a media type the spec lists.
     for o in done["outputs"].as_array().unwrap() {
-        let r = s.client.get(s.url(o["url"].as_str().unwrap())).send().await.unwrap();
+        let r = s
+            .client
+            .get(s.url(o["url"].as_str().unwrap()))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status().as_u16(), 200);
         let ct = r.headers()["content-type"].to_str().unwrap().to_string();
         assert_eq!(ct, o["media_type"].as_str().unwrap());
-        let op = &spec["paths"]["/v1/jobs/{id}/outputs/{name}"]["get"]["responses"]["200"]["content"];
-        assert!(op.get(&ct).is_some(), "output media type {ct} is not in the spec");
+        let op =
+            &spec["paths"]["/v1/jobs/{id}/outputs/{name}"]["get"]["responses"]["200"]["content"];
+        assert!(
+            op.get(&ct).is_some(),
+            "output media type {ct} is not in the spec"
+        );
     }
 
     // Errors.
-    let r = s.submit("snow-terrain", "dem", json!({"probe_radius": -1}), dem.clone(), "v.asc").await;
+    let r = s
+        .submit(
+            "snow-terrain",
+            "dem",
+            json!({"probe_radius": -1}),
+            dem.clone(),
+            "v.asc",
+        )
+        .await;
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     let p: Value = r.json().await.unwrap();
     assert_eq!(p["field"], "probe_radius");
     check(&spec, "post", "/v1/snow-terrain", status, &ct, &p);
-    let r = s.submit("snow-terrain", "dem", json!({}), b"ncols 3\nnrows 3\n".to_vec(), "v.asc").await;
+    let r = s
+        .submit(
+            "snow-terrain",
+            "dem",
+            json!({}),
+            b"ncols 3\nnrows 3\n".to_vec(),
+            "v.asc",
+        )
+        .await;
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     assert_eq!(status, 422);
-    check(&spec, "post", "/v1/snow-terrain", status, &ct, &r.json().await.unwrap());
-    let r = s.submit("snow-terrain", "dem", json!({}), b"GIF89a not a dem".to_vec(), "v.gif").await;
+    check(
+        &spec,
+        "post",
+        "/v1/snow-terrain",
+        status,
+        &ct,
+        &r.json().await.unwrap(),
+    );
+    let r = s
+        .submit(
+            "snow-terrain",
+            "dem",
+            json!({}),
+            b"GIF89a not a dem".to_vec(),
+            "v.gif",
+        )
+        .await;
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     assert_eq!(status, 415);
-    check(&spec, "post", "/v1/snow-terrain", status, &ct, &r.json().await.unwrap());
-    let r = s.client.get(s.url("/v1/jobs?limit=1000")).send().await.unwrap();
+    check(
+        &spec,
+        "post",
+        "/v1/snow-terrain",
+        status,
+        &ct,
+        &r.json().await.unwrap(),
+    );
+    let r = s
+        .client
+        .get(s.url("/v1/jobs?limit=1000"))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/v1/jobs", r.status().as_u16(), &ct, &r.json().await.unwrap());
-    let r = s.client.get(s.url(&format!("/v1/jobs/{}", "1".repeat(32)))).send().await.unwrap();
+    check(
+        &spec,
+        "get",
+        "/v1/jobs",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{}", "1".repeat(32))))
+        .send()
+        .await
+        .unwrap();
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(&spec, "get", "/v1/jobs/{id}", r.status().as_u16(), &ct, &r.json().await.unwrap());
+    check(
+        &spec,
+        "get",
+        "/v1/jobs/{id}",
+        r.status().as_u16(),
+        &ct,
+        &r.json().await.unwrap(),
+    );
 }
 
 #[test]
@@ -183,7 +361,9 @@ fn every_snow_terrain_parameter_is_documented_with_its_default() {
     // The resolved defaults the engine reports equal the spec's `default`s, and every parameter
     // the engine accepts is in the spec (and vice versa).
     let spec = spec();
-    let props = spec["components"]["schemas"]["SnowTerrainParams"]["properties"].as_object().unwrap();
+    let props = spec["components"]["schemas"]["SnowTerrainParams"]["properties"]
+        .as_object()
+        .unwrap();
     let limits = phenomena_engine::pipeline::Limits::default();
     let p = phenomena_engine::pipeline::Params::parse(
         phenomena_engine::pipeline::PipelineKind::SnowTerrain,
@@ -193,8 +373,13 @@ fn every_snow_terrain_parameter_is_documented_with_its_default() {
     .unwrap()
     .canonical();
     for (name, value) in p.as_object().unwrap() {
-        let prop = props.get(name).unwrap_or_else(|| panic!("{name} is not in openapi.yaml"));
-        assert!(prop.get("description").is_some(), "{name} has no description");
+        let prop = props
+            .get(name)
+            .unwrap_or_else(|| panic!("{name} is not in openapi.yaml"));
+        assert!(
+            prop.get("description").is_some(),
+            "{name} has no description"
+        );
         if name == "camera" {
             continue;
         }
@@ -202,20 +387,28 @@ fn every_snow_terrain_parameter_is_documented_with_its_default() {
             Some(d) => {
                 let (a, b) = (d.as_f64(), value.as_f64());
                 if let (Some(a), Some(b)) = (a, b) {
-                    assert!((a - b).abs() <= 1e-6 * a.abs().max(1.0), "{name}: spec default {d}, engine {value}");
+                    assert!(
+                        (a - b).abs() <= 1e-6 * a.abs().max(1.0),
+                        "{name}: spec default {d}, engine {value}"
+                    );
                 } else {
                     assert_eq!(d, value, "{name}");
                 }
             }
             None => assert!(
-                value.is_null() || ["smooth_radius", "tsa_window", "tsa_max", "probe_radius"].contains(&name.as_str()),
+                value.is_null()
+                    || ["smooth_radius", "tsa_window", "tsa_max", "probe_radius"]
+                        .contains(&name.as_str()),
                 "{name}: the engine's default {value} is not documented"
             ),
         }
     }
     for name in props.keys() {
         if name != "sweep" {
-            assert!(p.get(name).is_some(), "{name} is in openapi.yaml but not accepted");
+            assert!(
+                p.get(name).is_some(),
+                "{name} is in openapi.yaml but not accepted"
+            );
         }
     }
 }

@@ -13,7 +13,15 @@ const BIN: &str = env!("CARGO_BIN_EXE_phenomena");
 /// the JSON log line "listening").
 fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
     let mut child = Command::new(BIN)
-        .args(["serve", "--bind", "127.0.0.1:0", "--log-format", "json", "--threads", "2"])
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--log-format",
+            "json",
+            "--threads",
+            "2",
+        ])
         .arg("--data-dir")
         .arg(data_dir)
         .env("PHENOMENA_LOG", "info")
@@ -37,7 +45,9 @@ fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
             }
         }
     });
-    let addr = rx.recv_timeout(Duration::from_secs(30)).expect("server did not start");
+    let addr = rx
+        .recv_timeout(Duration::from_secs(30))
+        .expect("server did not start");
     (child, addr)
 }
 
@@ -78,8 +88,16 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
     let (mut child, addr) = spawn_server(dir.path());
     let form = reqwest::multipart::Form::new()
         .text("params", params.to_string())
-        .part("dem", reqwest::multipart::Part::bytes(input.clone()).file_name("terrain.npy"));
-    let resp = client.post(format!("http://{addr}/v1/snow-terrain")).multipart(form).send().await.unwrap();
+        .part(
+            "dem",
+            reqwest::multipart::Part::bytes(input.clone()).file_name("terrain.npy"),
+        );
+    let resp = client
+        .post(format!("http://{addr}/v1/snow-terrain"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
     assert_eq!(resp.status().as_u16(), 202);
     let job: Value = resp.json().await.unwrap();
     let id = job["id"].as_str().unwrap().to_string();
@@ -87,11 +105,21 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
     // Wait until the job is running and has made progress, then kill the process outright.
     let t0 = Instant::now();
     loop {
-        let j: Value = client.get(format!("http://{addr}/v1/jobs/{id}")).send().await.unwrap().json().await.unwrap();
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
         if j["status"] == "running" && j["progress"].as_f64().unwrap() > 0.0 {
             break;
         }
-        assert_ne!(j["status"], "succeeded", "the job finished before it could be killed; make it bigger");
+        assert_ne!(
+            j["status"], "succeeded",
+            "the job finished before it could be killed; make it bigger"
+        );
         assert!(t0.elapsed() < Duration::from_secs(60));
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
@@ -100,14 +128,26 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
 
     let (mut child, addr) = spawn_server(dir.path());
     let done: Value = loop {
-        let j: Value = client.get(format!("http://{addr}/v1/jobs/{id}")).header("prefer", "wait=30").send().await.unwrap().json().await.unwrap();
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{id}"))
+            .header("prefer", "wait=30")
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
         if j["status"] != "queued" && j["status"] != "running" {
             break j;
         }
         assert!(t0.elapsed() < Duration::from_secs(300));
     };
     assert_eq!(done["status"], "succeeded", "{done}");
-    assert_eq!(done["attempts"], json!(2), "the job ran again after the crash");
+    assert_eq!(
+        done["attempts"],
+        json!(2),
+        "the job ran again after the crash"
+    );
 
     // The outputs equal an offline CLI run of the same request.
     let cli_in = dir.path().join("cli-input.npy");
@@ -125,7 +165,12 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
         .status()
         .unwrap();
     assert!(status.success());
-    for name in ["render.png", "snow_cover.tif", "descriptor.png", "terrain.glb"] {
+    for name in [
+        "render.png",
+        "snow_cover.tif",
+        "descriptor.png",
+        "terrain.glb",
+    ] {
         let served = client
             .get(format!("http://{addr}/v1/jobs/{id}/outputs/{name}"))
             .send()
@@ -135,7 +180,10 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
             .await
             .unwrap();
         let offline = std::fs::read(out_dir.join(name)).unwrap();
-        assert!(served.as_ref() == offline.as_slice(), "{name} differs between the restarted job and the CLI");
+        assert!(
+            served.as_ref() == offline.as_slice(),
+            "{name} differs between the restarted job and the CLI"
+        );
     }
     child.kill().unwrap();
     child.wait().unwrap();

@@ -126,7 +126,11 @@ impl Params {
             if !SWEEPABLE.contains(&sweep.param.as_str()) {
                 return Err(ParamError::new(
                     "sweep.param",
-                    format!("cannot sweep {:?}; one of: {}", sweep.param, SWEEPABLE.join(", ")),
+                    format!(
+                        "cannot sweep {:?}; one of: {}",
+                        sweep.param,
+                        SWEEPABLE.join(", ")
+                    ),
                 ));
             }
             if !(2..=12).contains(&sweep.values.len()) {
@@ -139,12 +143,13 @@ impl Params {
                     m.remove("sweep");
                     m.insert(sweep.param.clone(), serde_json::json!(value));
                 }
-                let w: WireParams = crate::pipeline::deserialize_params(&obj).map_err(|e| {
-                    ParamError::new(format!("sweep.values[{i}]"), e.detail)
-                })?;
-                runs.push(Self::from_wire(&w, limits).map_err(|e| {
-                    ParamError::new(format!("sweep.values[{i}]"), e.to_string())
-                })?);
+                let w: WireParams = crate::pipeline::deserialize_params(&obj)
+                    .map_err(|e| ParamError::new(format!("sweep.values[{i}]"), e.detail))?;
+                runs.push(
+                    Self::from_wire(&w, limits).map_err(|e| {
+                        ParamError::new(format!("sweep.values[{i}]"), e.to_string())
+                    })?,
+                );
             }
             p.sweep = Some(sweep.clone());
             p.sweep_runs = runs;
@@ -168,7 +173,13 @@ impl Params {
         let camera = camera_spec(w.camera.clone().unwrap_or_default())?;
         let descriptor = DescriptorParams {
             smooth_radius: range("smooth_radius", w.smooth_radius, d.smooth_radius, 1, 16)?,
-            smooth_iterations: range("smooth_iterations", w.smooth_iterations, d.smooth_iterations, 0, 50)?,
+            smooth_iterations: range(
+                "smooth_iterations",
+                w.smooth_iterations,
+                d.smooth_iterations,
+                0,
+                50,
+            )?,
             tsa_window: range("tsa_window", w.tsa_window, d.tsa_window, 1, 16)?,
             tsa_max: range("tsa_max", w.tsa_max, d.tsa_max, 1.0, 1.0e7)?,
             probe_radius: range("probe_radius", w.probe_radius, d.probe_radius, 0.001, 1.0e7)?,
@@ -181,7 +192,13 @@ impl Params {
                 100.0,
             )?,
             snowline: range("snowline", w.snowline, d.snowline, -500.0, 9000.0)?,
-            altitude_exponent: range("altitude_exponent", w.altitude_exponent, d.altitude_exponent, 0.0, 10.0)?,
+            altitude_exponent: range(
+                "altitude_exponent",
+                w.altitude_exponent,
+                d.altitude_exponent,
+                0.0,
+                10.0,
+            )?,
             descriptor_smooth_iterations: range(
                 "descriptor_smooth_iterations",
                 w.descriptor_smooth_iterations,
@@ -189,9 +206,27 @@ impl Params {
                 0,
                 50,
             )?,
-            sun_azimuth_deg: range("sun_azimuth_deg", w.sun_azimuth_deg, d.sun_azimuth_deg, 0.0, 360.0)?,
-            sun_spread_deg: range("sun_spread_deg", w.sun_spread_deg, d.sun_spread_deg, 0.0, 90.0)?,
-            sun_min_slope_deg: range("sun_min_slope_deg", w.sun_min_slope_deg, d.sun_min_slope_deg, 0.0, 89.0)?,
+            sun_azimuth_deg: range(
+                "sun_azimuth_deg",
+                w.sun_azimuth_deg,
+                d.sun_azimuth_deg,
+                0.0,
+                360.0,
+            )?,
+            sun_spread_deg: range(
+                "sun_spread_deg",
+                w.sun_spread_deg,
+                d.sun_spread_deg,
+                0.0,
+                90.0,
+            )?,
+            sun_min_slope_deg: range(
+                "sun_min_slope_deg",
+                w.sun_min_slope_deg,
+                d.sun_min_slope_deg,
+                0.0,
+                89.0,
+            )?,
         };
         let rock_color = w.rock_color.clone().unwrap_or_else(|| "#6e665c".into());
         let snow_color = w.snow_color.clone().unwrap_or_else(|| "#f4f7fb".into());
@@ -219,7 +254,13 @@ impl Params {
             ambient: range("ambient", w.ambient, 0.35, 0.0, 1.0)?,
             haze: range("haze", w.haze, 0.5, 0.0, 1.0)?,
             samples: range("samples", w.samples, 4, 1, 16)?,
-            mesh_max_vertices: range("mesh_max_vertices", w.mesh_max_vertices, 262_144, 4, 4_194_304)?,
+            mesh_max_vertices: range(
+                "mesh_max_vertices",
+                w.mesh_max_vertices,
+                262_144,
+                4,
+                4_194_304,
+            )?,
             cell_size,
             vertical_scale,
             sweep: None,
@@ -227,4 +268,3 @@ impl Params {
         })
     }
 }
-

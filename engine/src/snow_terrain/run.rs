@@ -101,7 +101,9 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
 pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(String, f64)> = Vec::new();
-    let mut lap = |name: &str, t0: Instant| timings.push((name.to_string(), t0.elapsed().as_secs_f64() * 1e3));
+    let mut lap = |name: &str, t0: Instant| {
+        timings.push((name.to_string(), t0.elapsed().as_secs_f64() * 1e3))
+    };
 
     let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
 
@@ -122,8 +124,20 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     };
     let accel = TerrainAccel::new(&scene);
     let camera = camera_for(&p.camera, &scene);
-    let render_end = if p.sweep_runs.is_empty() { RENDER_END } else { 0.6 };
-    let image = render_with(&accel, &camera, &lighting(p), p.width, p.height, ctl, (DESCRIPTOR_END, render_end))?;
+    let render_end = if p.sweep_runs.is_empty() {
+        RENDER_END
+    } else {
+        0.6
+    };
+    let image = render_with(
+        &accel,
+        &camera,
+        &lighting(p),
+        p.width,
+        p.height,
+        ctl,
+        (DESCRIPTOR_END, render_end),
+    )?;
     lap("render", t0);
 
     let mut outputs = Vec::new();
@@ -149,7 +163,15 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
                 rayon::join(
                     || encode_rgba(&descriptor_preview(dem, &d.t)),
                     || {
-                        terrain_glb(&heights, dem.width, dem.height, dem.dx, dem.dy, &colour, p.mesh_max_vertices)
+                        terrain_glb(
+                            &heights,
+                            dem.width,
+                            dem.height,
+                            dem.dx,
+                            dem.dy,
+                            &colour,
+                            p.mesh_max_vertices,
+                        )
                     },
                 )
             },
@@ -216,7 +238,12 @@ impl<A, B, C, D> IntoFlat<A, B, C, D> for ((A, B), (C, D)) {
 
 /// `sweep.png`: one tile per sweep value, each a full descriptor + render at a third of the
 /// output size, labelled `param = value`.
-fn sweep_sheet(dem: &Dem, p: &Params, ctl: &dyn Control, frac: (f32, f32)) -> Result<RgbaImage, Canceled> {
+fn sweep_sheet(
+    dem: &Dem,
+    p: &Params,
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
     let n = p.sweep_runs.len();
     let columns = if n <= 4 { n } else { 3 };
     let tw = (p.width / 3).max(160);
