@@ -691,3 +691,63 @@ fn timings_big() {
     });
     println!("  glb size {} KiB", bytes / 1024);
 }
+
+#[test]
+fn a_ridge_casts_a_shadow_and_cancel_stops_the_render() {
+    // Flat ground at 0 with a 50 m north–south ridge at column 40; sun in the east, 30° up:
+    // the shadow reaches 50 / tan 30° ≈ 87 m west of the ridge.
+    let (w, h) = (64, 64);
+    let heights: Vec<f32> = (0..w * h)
+        .map(|k| if k % w == 40 { 50.0 } else { 0.0 })
+        .collect();
+    let albedo = vec![[0.5f32; 3]; w * h];
+    let scene = TerrainScene {
+        width: w,
+        height: h,
+        dx: 1.0,
+        dy: 1.0,
+        heights: &heights,
+        albedo: &albedo,
+    };
+    let acc = TerrainAccel::new(&scene);
+    let sun = sun_direction(90.0, 30.0);
+    let x = |col: f64| col - 31.5;
+    assert!(!acc.sunlit([x(30.0), 0.0, 0.0], sun, 1e-3));
+    assert!(acc.sunlit([x(50.0), 0.0, 0.0], sun, 1e-3));
+    // Rendered from above, both shadow modes: 64² grid points < 128² pixels uses the per-point
+    // map, > 32² pixels a shadow ray per hit.
+    let cam = Camera {
+        eye: [0.0, 300.0, 0.0],
+        target: [0.0, 0.0, 0.0],
+        up: [0.0, 0.0, -1.0],
+        fov_deg: 14.0,
+    };
+    let light = Lighting {
+        sun_dir: sun,
+        shadows: true,
+        ..flat_lighting()
+    };
+    for size in [128u32, 32] {
+        let img = render_terrain(&scene, &cam, &light, size, size, &NoControl, (0.0, 1.0)).unwrap();
+        // Image x runs east; the ridge is at 8.5 m east of the centre.
+        let px = |metres_east: f64| {
+            ((0.5 + metres_east / (2.0 * 300.0 * 7f64.to_radians().tan())) * f64::from(size)) as u32
+        };
+        let shadow = img.pixel(px(-10.0), size / 2)[0];
+        let lit = img.pixel(px(20.0), size / 2)[0];
+        assert!(shadow + 40 < lit, "{size}px: shadow {shadow} vs lit {lit}");
+    }
+
+    struct CancelAfter(std::sync::atomic::AtomicUsize);
+    impl phenomena_engine::Control for CancelAfter {
+        fn progress(&self, _stage: &str, fraction: f32) {
+            assert!((0.2..=0.6).contains(&fraction));
+        }
+        fn is_canceled(&self) -> bool {
+            self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed) > 3
+        }
+    }
+    let ctl = CancelAfter(0.into());
+    let res = render_terrain(&scene, &cam, &light, 200, 200, &ctl, (0.2, 0.6));
+    assert_eq!(res, Err(phenomena_engine::Canceled));
+}
