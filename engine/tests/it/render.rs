@@ -488,6 +488,28 @@ pub(crate) fn check_glb(bytes: &[u8]) -> serde_json::Value {
     assert_eq!(count(&prim["attributes"]["NORMAL"]), n);
     assert_eq!(count(&prim["attributes"]["COLOR_0"]), n);
     assert_eq!(count(&prim["indices"]) % 3, 0);
+    // Every index points at a vertex; every position is finite and inside min/max.
+    let view = |acc: &serde_json::Value| {
+        let a = &doc["accessors"][acc.as_u64().unwrap() as usize];
+        let v = &doc["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
+        let off = bin_at + 8 + v["byteOffset"].as_u64().unwrap_or(0) as usize;
+        &bytes[off..off + v["byteLength"].as_u64().unwrap() as usize]
+    };
+    for c in view(&prim["indices"]).chunks_exact(4) {
+        assert!((u32::from_le_bytes(c.try_into().unwrap()) as u64) < n);
+    }
+    let pos_acc = &doc["accessors"][prim["attributes"]["POSITION"].as_u64().unwrap() as usize];
+    for (k, c) in view(&prim["attributes"]["POSITION"])
+        .chunks_exact(4)
+        .enumerate()
+    {
+        let v = f64::from(f32::from_le_bytes(c.try_into().unwrap()));
+        assert!(v.is_finite());
+        assert!(
+            v >= pos_acc["min"][k % 3].as_f64().unwrap()
+                && v <= pos_acc["max"][k % 3].as_f64().unwrap()
+        );
+    }
     doc
 }
 
