@@ -12,17 +12,24 @@
 //! root node. A ray is clipped to the DEM's bounding box and walks the pyramid front to back: at a
 //! node it computes where it leaves the node; if the ray stays above the node's maximum over that
 //! stretch it skips the node (and climbs one level when it enters a new parent), otherwise it
-//! descends into the child that contains it; at level 0 it intersects the cell's triangles. Cost
-//! is O(log n) nodes per ray over smooth terrain, and the pyramid costs n/3 floats (level 0 is the
-//! heights themselves). Rejected: a mesh rasteriser (2 triangles per cell per frame is 33 M
+//! descends into the child that contains it; at level 0 it intersects the cell's triangles. Rays
+//! start at 16-cell nodes rather than the root (fewer visits: 19 → 15 per ray on the paper case).
+//! Cost is O(log n) nodes per ray over smooth terrain (~15 node visits and ~4 cell tests per ray
+//! on rugged 50 m terrain), and the pyramid costs n/3 floats (level 0 is the heights themselves);
+//! building it for 4096² takes ~90 ms of CPU. Rejected: a mesh rasteriser (2 triangles per cell per frame is 33 M
 //! triangles for a 4096² DEM), and fixed-step ray marching (misses thin ridges, slow at grazing
 //! angles).
 //!
-//! **Nodata and alpha.** A ray that hits nothing is *transparent* (alpha 0) if it crosses the
-//! horizontal plane of the lowest valid height inside the DEM's footprint — it fell through a
-//! hole — and shows the *sky* (opaque) otherwise, i.e. when it passes beside or above the DEM.
-//! This keeps nodata regions and nodata margins transparent from any view while the horizon stays
-//! sky.
+//! **Nodata and alpha.** A ray that hits nothing is *transparent* (alpha 0) if it fell through a
+//! hole: it entered the DEM's footprint from above the terrain's edge (or over a nodata stretch of
+//! the edge) and crossed the horizontal plane of the lowest valid height inside the footprint.
+//! Otherwise — beside or above the DEM, or under its valid edge (looking at the cut face) — it
+//! shows the *sky*, opaque. Nodata regions and nodata margins are transparent from any view while
+//! the horizon stays sky and there is no transparent sliver under the near edge.
+//!
+//! **Shadows.** One shadow ray through the same pyramid. DEMs with fewer grid points than the
+//! image has pixels shoot it once per grid point and interpolate the visibility bilinearly (soft
+//! edges one cell wide); bigger DEMs once per hit sample (sharp).
 //!
 //! **Sky.** A vertical gradient in *screen space*, `sky_top` at the top row to `sky_horizon` at
 //! the bottom (`(1 − y/h)^1.5`): orbit views look down, so a gradient by ray elevation would show
@@ -45,6 +52,10 @@
 //!
 //! **Parallelism.** Rayon over bands of 4 image rows; every pixel is computed independently, so the
 //! bytes do not depend on the thread count. No allocation per pixel; `checkpoint` per band.
+//!
+//! **Measured** (release, 2 busy cores, CPU time ÷ 2 ≈ idle wall time; `timings_*` tests in
+//! `engine/tests/it/render.rs`): paper case 400×200 → 900×600 with AA and shadows ~70 ms,
+//! one ray per pixel ~42 ms; 4096² → 1920×1080 with AA and shadows ~540 ms including the pyramid.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
