@@ -17,7 +17,7 @@ const GLYPH: usize = 8 * SCALE;
 const CAPTION: usize = GLYPH + 12;
 
 /// Lay `tiles` out in `columns` columns (≥ 1; the rows follow), each tile with its caption
-/// centred below it (truncated to end in `..` when wider than the tile). Cells are the size of the
+/// centred below it (at 1× when too wide at 2×, truncated to end in `..` beyond that). Cells are the size of the
 /// largest tile; smaller tiles are centred. Tiles are composited over the background (straight
 /// alpha, blended in sRGB bytes, which is adequate for a preview sheet). The result is opaque.
 ///
@@ -59,15 +59,22 @@ fn blit_over(dst: &mut RgbaImage, src: &RgbaImage, x0: usize, y0: usize) {
     }
 }
 
-/// Draw `text` centred in the `width` pixels starting at `x0`, top at `y0`.
+/// Draw `text` centred in the `width` pixels starting at `x0`, top at `y0`: at 2× when it fits,
+/// else at 1× (vertically centred in the same strip), else truncated to end in `..`.
 fn draw_label(img: &mut RgbaImage, text: &str, x0: usize, y0: usize, width: usize) {
-    let max_chars = width / GLYPH;
     let mut chars: Vec<char> = text.chars().collect();
+    let (scale, y0) = if chars.len() * GLYPH <= width {
+        (SCALE, y0)
+    } else {
+        (1, y0 + (GLYPH - 8) / 2)
+    };
+    let glyph_w = 8 * scale;
+    let max_chars = width / glyph_w;
     if chars.len() > max_chars {
         chars.truncate(max_chars.saturating_sub(2));
         chars.resize(max_chars, '.');
     }
-    let tw = chars.len() * GLYPH;
+    let tw = chars.len() * glyph_w;
     let mut x = x0 + (width.saturating_sub(tw)) / 2;
     let iw = img.width as usize;
     for ch in chars {
@@ -80,10 +87,10 @@ fn draw_label(img: &mut RgbaImage, text: &str, x0: usize, y0: usize, width: usiz
         for (gy, bits) in glyph.iter().enumerate() {
             for gx in 0..8 {
                 if bits >> gx & 1 == 1 {
-                    for sy in 0..SCALE {
-                        for sx in 0..SCALE {
-                            let px = x + gx * SCALE + sx;
-                            let py = y0 + gy * SCALE + sy;
+                    for sy in 0..scale {
+                        for sx in 0..scale {
+                            let px = x + gx * scale + sx;
+                            let py = y0 + gy * scale + sy;
                             let i = (py * iw + px) * 4;
                             img.data[i..i + 3].copy_from_slice(&INK);
                         }
@@ -91,6 +98,6 @@ fn draw_label(img: &mut RgbaImage, text: &str, x0: usize, y0: usize, width: usiz
                 }
             }
         }
-        x += GLYPH;
+        x += glyph_w;
     }
 }
