@@ -2,4 +2,6 @@
 
 mod descriptor;
 mod formats;
+mod golden;
 mod render;
+mod snow_terrain;

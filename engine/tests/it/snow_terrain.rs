@@ -1,0 +1,138 @@
+//! The whole `snow-terrain` pipeline on real DEMs: reference images, determinism across thread
+//! counts, nodata, sweeps and cancellation.
+
+use phenomena_engine::formats::dem::{decode_dem, DemOptions};
+use phenomena_engine::pipeline::Limits;
+use phenomena_engine::render::image::RgbaImage;
+use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::{Canceled, Control, NoControl, Output};
+use serde_json::json;
+
+use crate::golden::assert_golden;
+
+fn dem(name: &str) -> phenomena_engine::geom::Dem {
+    let path = format!("{}/../../shared/data/dem/{name}", env!("CARGO_MANIFEST_DIR"));
+    decode_dem(&std::fs::read(path).unwrap(), Some(name), &DemOptions::default()).unwrap()
+}
+
+fn params(v: serde_json::Value) -> Params {
+    Params::from_json(&v, &Limits::default()).unwrap()
+}
+
+fn output<'a>(outs: &'a [Output], name: &str) -> &'a [u8] {
+    &outs.iter().find(|o| o.name == name).unwrap().bytes
+}
+
+fn decode_rgba(bytes: &[u8]) -> RgbaImage {
+    let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
+    dec.set_transformations(png::Transformations::EXPAND);
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size()];
+    let info = r.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    RgbaImage { width: info.width, height: info.height, data: buf }
+}
+
+/// Golden cases: per-channel tolerance 3/255 on at least 99.5 % of pixels (silhouette pixels may
+/// flip between CPUs).
+#[test]
+fn golden_renders() {
+    let cases = [
+        ("volcano_default", "maunga_whau_volcano.asc", json!({"width": 300, "height": 200})),
+        (
+            "luxembourg_nodata",
+            "luxembourg_elev.tif",
+            json!({"width": 300, "height": 200, "camera": {"azimuth_deg": 180, "elevation_deg": 50}}),
+        ),
+        (
+            "jacksboro_flat_paper_style",
+            "jacksboro_fault_dem_f32.tif",
+            json!({"width": 300, "height": 200, "shading": false, "vertical_exaggeration": 3, "probe_radius": 8000}),
+        ),
+    ];
+    for (case, file, p) in cases {
+        let outs = run(&dem(file), &params(p), &NoControl).unwrap();
+        assert_golden("snow-terrain", case, &decode_rgba(output(&outs, "render.png")), 3, 0.005);
+    }
+}
+
+#[test]
+fn same_bytes_on_one_thread_and_two() {
+    let d = dem("jacksboro_fault_dem_f32.tif");
+    let p = params(json!({"width": 200, "height": 120}));
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| run(&d, &p, &NoControl).unwrap());
+    let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| run(&d, &p, &NoControl).unwrap());
+    for (a, b) in one.iter().zip(&two) {
+        assert_eq!(a.name, b.name);
+        if a.name != "report.json" {
+            assert!(a.bytes == b.bytes, "{} differs between thread counts", a.name);
+        }
+    }
+}
+
+#[test]
+fn nodata_is_transparent_in_the_render_and_descriptor() {
+    let d = dem("luxembourg_elev.tif");
+    let outs = run(&d, &params(json!({"width": 200, "height": 200, "camera": {"azimuth_deg": 180, "elevation_deg": 89}})), &NoControl).unwrap();
+    let img = decode_rgba(output(&outs, "render.png"));
+    let transparent = img.data.chunks(4).filter(|p| p[3] == 0).count();
+    assert!(transparent > 100, "holes seen from above are transparent ({transparent} px)");
+    let desc = decode_rgba(output(&outs, "descriptor.png"));
+    assert_eq!((desc.width as usize, desc.height as usize), (d.width, d.height));
+    let holes = desc.data.chunks(4).filter(|p| p[3] == 0).count();
+    assert_eq!(holes, 3942, "every nodata cell and only those");
+}
+
+#[test]
+fn sweep_adds_a_contact_sheet() {
+    let d = dem("maunga_whau_volcano.asc");
+    let p = params(json!({"width": 240, "height": 160, "sweep": {"param": "probe_radius", "values": [200, 800, 3200]}}));
+    assert_eq!(p.sweep_runs.len(), 3);
+    assert_eq!(p.sweep_runs[1].descriptor.probe_radius, 800.0);
+    let outs = run(&d, &p, &NoControl).unwrap();
+    let sheet = decode_rgba(output(&outs, "sweep.png"));
+    // Three 160-wide tiles in one row with 12 px gaps.
+    assert_eq!(sheet.width, 3 * (160 + 12) + 12);
+    // More probe radius, more snow (SPEC §1 step 3): compare the descriptors of the runs.
+    let snow = |r: f32| {
+        let outs = run(&d, &params(json!({"width": 32, "height": 32, "probe_radius": r})), &NoControl).unwrap();
+        let rep: serde_json::Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
+        rep["mean_snow"].as_f64().unwrap()
+    };
+    let (a, b, c) = (snow(200.0), snow(800.0), snow(3200.0));
+    assert!(a < b && b < c, "{a} {b} {c}");
+}
+
+#[test]
+fn bad_sweeps_and_params_name_the_field() {
+    let l = Limits::default();
+    for (v, field) in [
+        (json!({"sweep": {"param": "width", "values": [1, 2]}}), "sweep.param"),
+        (json!({"sweep": {"param": "b", "values": [0.5]}}), "sweep.values"),
+        (json!({"sweep": {"param": "b", "values": [0.5, 2.0]}}), "sweep.values[1]"),
+        (json!({"camera": {"eye": [0, 0, 0]}}), "camera.target"),
+        (json!({"camera": {"fov_deg": 0}}), "camera.fov_deg"),
+        (json!({"camera": {"fovdeg": 30}}), "camera.fovdeg"),
+        (json!({"rock_color": "red"}), "rock_color"),
+        (json!({"width": 8000, "height": 8000}), "width"),
+        (json!({"probe_radius": null, "b": 1.5}), "b"),
+    ] {
+        let e = Params::from_json(&v, &l).unwrap_err();
+        assert_eq!(e.field, field, "{v}: {e}");
+    }
+}
+
+struct CancelAfter(std::sync::atomic::AtomicUsize);
+impl Control for CancelAfter {
+    fn progress(&self, _: &str, _: f32) {}
+    fn is_canceled(&self) -> bool {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed) > 3
+    }
+}
+
+#[test]
+fn cancellation_stops_the_pipeline() {
+    let d = dem("tanzawa_sagami_aster_gdem2.tif");
+    let r = run(&d, &params(json!({})), &CancelAfter(0.into()));
+    assert!(matches!(r, Err(Canceled)));
+}
