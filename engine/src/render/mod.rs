@@ -6,6 +6,9 @@
 //!   and per-pixel ray generation.
 //! - [`terrain`]: a ray caster over a maximum-height mip pyramid that draws big DEMs at full detail
 //!   with Lambert shading, cast shadows, aerial perspective (SPEC §1 step 8) and a sky background.
+//! - [`raster`]: a z-buffered, binned, parallel triangle rasteriser with perspective-correct
+//!   attributes and the ray caster's adaptive anti-aliasing; draws DEMs with fewer cells than
+//!   output pixels, and meshes.
 //! - [`sheet`]: labelled contact sheets of tiles (the paper's Figs. 11–12).
 //!
 //! World frame (shared with `geom::heightfield` and the glTF writer): X = east, Y = up, Z = south,
@@ -13,6 +16,7 @@
 
 pub mod camera;
 pub mod image;
+pub mod raster;
 pub mod sheet;
 pub mod terrain;
 
@@ -21,5 +25,6 @@ pub use image::RgbaImage;
 pub use sheet::contact_sheet;
 
 pub use terrain::{
-    render_terrain, render_with, sun_direction, Hit, Lighting, TerrainAccel, TerrainScene,
+    render_terrain, render_with, render_with_path, sun_direction, Hit, Lighting, RenderPath,
+    TerrainAccel, TerrainScene, RASTER_CELLS_PER_PIXEL,
 };

@@ -62,7 +62,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use rayon::prelude::*;
 
 use super::camera::{dot, normalize, Camera};
-use super::image::{linear_to_srgb8, RgbaImage};
+use super::image::RgbaImage;
+use super::raster::{self, sample_pattern, write_pixel, Mesh, Projection, Rasterizer, Sample};
 use crate::control::{Canceled, Control};
 
 /// A DEM prepared for rendering. Grid point (`col`, `row`) sits at world
@@ -773,69 +774,6 @@ fn height_range(h: &[f32]) -> Option<(f32, f32)> {
     (lo <= hi).then_some((lo, hi))
 }
 
-/// Sub-pixel sample offsets in [0, 1)²: RGSS for 4, an n-rooks rotated grid otherwise.
-fn sample_pattern(n: u32, out: &mut [(f64, f64); 64]) -> usize {
-    let n = n.clamp(1, 64) as usize;
-    match n {
-        1 => out[0] = (0.5, 0.5),
-        4 => {
-            out[..4].copy_from_slice(&[
-                (0.375, 0.125),
-                (0.875, 0.375),
-                (0.125, 0.625),
-                (0.625, 0.875),
-            ]);
-        }
-        _ => {
-            // Column k gets row (k·stride) mod n with a stride near n/φ coprime to n.
-            let mut stride = ((n as f64 / 1.618) as usize).max(1);
-            while gcd(stride, n) != 1 {
-                stride += 1;
-            }
-            for (k, o) in out.iter_mut().take(n).enumerate() {
-                *o = (
-                    (k as f64 + 0.5) / n as f64,
-                    (((k * stride) % n) as f64 + 0.5) / n as f64,
-                );
-            }
-        }
-    }
-    n
-}
-
-fn gcd(a: usize, b: usize) -> usize {
-    if b == 0 {
-        a
-    } else {
-        gcd(b, a % b)
-    }
-}
-
-/// One shaded ray: linear RGB, coverage (0 = transparent) and hit distance (+∞ = sky,
-/// −1 = fell through a hole).
-#[derive(Debug, Clone, Copy, Default)]
-struct Sample {
-    c: [f32; 3],
-    a: f32,
-    t: f32,
-}
-
-impl Sample {
-    /// True when this and a neighbouring centre sample differ enough that the pixel needs
-    /// super-sampling: another kind (terrain / sky / hole), a depth jump over 3 %, or a colour
-    /// step over ~6/255 in a gamma-2 approximation of sRGB.
-    #[inline]
-    fn differs(&self, o: &Sample) -> bool {
-        if self.a != o.a || self.t.is_finite() != o.t.is_finite() {
-            return true;
-        }
-        if self.t.is_finite() && (self.t - o.t).abs() > 0.03 * self.t.min(o.t) {
-            return true;
-        }
-        (0..3).any(|ch| (self.c[ch].max(0.0).sqrt() - o.c[ch].max(0.0).sqrt()).abs() > 0.025)
-    }
-}
-
 /// Shade one sample.
 struct Shader<'s, 'a> {
     accel: &'s TerrainAccel<'a>,
@@ -852,22 +790,35 @@ struct Shader<'s, 'a> {
 impl Shader<'_, '_> {
     #[inline]
     fn shade(&self, dir: [f64; 3], y_frac: f32) -> Sample {
+        match self.accel.intersect(self.eye, dir, 0.0, f64::INFINITY) {
+            Some(hit) => self.shade_hit(&hit),
+            None => self.miss(dir, y_frac),
+        }
+    }
+
+    /// A ray that hit nothing: transparent through a hole, else the sky.
+    #[inline]
+    fn miss(&self, dir: [f64; 3], y_frac: f32) -> Sample {
+        if self.accel.through_footprint(self.eye, dir, 0.0) {
+            return Sample {
+                c: [0.0; 3],
+                a: 0.0,
+                t: -1.0,
+            };
+        }
+        Sample {
+            c: self.sky(y_frac),
+            a: 1.0,
+            t: f32::INFINITY,
+        }
+    }
+
+    /// Shade a surface point.
+    #[inline]
+    fn shade_hit(&self, hit: &Hit) -> Sample {
         let acc = self.accel;
         let l = self.light;
-        let Some(hit) = acc.intersect(self.eye, dir, 0.0, f64::INFINITY) else {
-            if acc.through_footprint(self.eye, dir, 0.0) {
-                return Sample {
-                    c: [0.0; 3],
-                    a: 0.0,
-                    t: -1.0,
-                };
-            }
-            return Sample {
-                c: self.sky(y_frac),
-                a: 1.0,
-                t: f32::INFINITY,
-            };
-        };
+        let hit = *hit;
         let albedo = acc.hit_albedo(&hit);
         let mut c = albedo;
         if l.shading {
@@ -940,12 +891,67 @@ pub fn render_terrain(
 }
 
 /// [`render_terrain`] with a pyramid built once, for several views of one scene (sweeps).
+/// Chooses the rasteriser or the ray caster by [`RenderPath::Auto`].
 pub fn render_with(
     accel: &TerrainAccel,
     camera: &Camera,
     light: &Lighting,
     out_w: u32,
     out_h: u32,
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
+    render_with_path(
+        accel,
+        camera,
+        light,
+        out_w,
+        out_h,
+        RenderPath::Auto,
+        ctl,
+        frac,
+    )
+}
+
+/// Which renderer draws the terrain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RenderPath {
+    /// The rasteriser when the grid has fewer than [`RASTER_CELLS_PER_PIXEL`] cells per output
+    /// pixel, else the ray caster. Default.
+    #[default]
+    Auto,
+    /// Always the ray caster.
+    RayCast,
+    /// Always the rasteriser.
+    Raster,
+}
+
+/// The path-selection threshold: rasterise when `cells < RASTER_CELLS_PER_PIXEL × pixels`.
+/// See the module doc ("Two paths") for the measured crossover.
+pub const RASTER_CELLS_PER_PIXEL: f64 = 1.0;
+
+impl RenderPath {
+    /// The concrete path for `cells` grid cells and `pixels` output pixels.
+    pub fn resolve(self, cells: usize, pixels: usize) -> RenderPath {
+        match self {
+            RenderPath::Auto if (cells as f64) < RASTER_CELLS_PER_PIXEL * pixels as f64 => {
+                RenderPath::Raster
+            }
+            RenderPath::Auto => RenderPath::RayCast,
+            p => p,
+        }
+    }
+}
+
+/// [`render_with`] on an explicit [`RenderPath`] (tests and benchmarks compare the two).
+#[allow(clippy::too_many_arguments)]
+pub fn render_with_path(
+    accel: &TerrainAccel,
+    camera: &Camera,
+    light: &Lighting,
+    out_w: u32,
+    out_h: u32,
+    path: RenderPath,
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
@@ -969,7 +975,10 @@ pub fn render_with(
     // Shadows: one ray per grid point when the grid has fewer points than the image has pixels,
     // else one ray per hit.
     let sc = accel.scene();
-    let sun_map = if light.shading && light.shadows && sc.width * sc.height < w * h {
+    let path = path.resolve(accel.cw * accel.ch, w * h);
+    let raster = path == RenderPath::Raster;
+    // The rasteriser has no per-sample rays, so it always uses the per-grid-point map.
+    let sun_map = if light.shading && light.shadows && (raster || sc.width * sc.height < w * h) {
         Some(accel.sun_visibility(sun, eps, ctl)?)
     } else {
         None
@@ -984,6 +993,9 @@ pub fn render_with(
         eps,
         sun_map: sun_map.as_deref(),
     };
+    if raster {
+        return render_raster(&shader, camera, light, out_w, out_h, (near, far), ctl, frac);
+    }
     let bands = h.div_ceil(BAND);
     let done = AtomicUsize::new(0);
     // `done` counts bands over both passes.
@@ -1041,17 +1053,101 @@ pub fn render_with(
                         }
                         n += ns as f32;
                     }
-                    if cover > 0.0 {
-                        let inv = 1.0 / cover;
-                        px[0] = linear_to_srgb8(sum[0] * inv);
-                        px[1] = linear_to_srgb8(sum[1] * inv);
-                        px[2] = linear_to_srgb8(sum[2] * inv);
-                        px[3] = (cover / n * 255.0 + 0.5) as u8;
-                    }
+                    write_pixel(px, sum, cover, n);
                 }
             }
             report();
             Ok(())
         })?;
     Ok(img)
+}
+
+/// The raster path: the grid's triangles through [`raster::render_adaptive`], shaded exactly as
+/// the ray caster shades a hit (the fragment's barycentrics give the cell position).
+#[allow(clippy::too_many_arguments)]
+fn render_raster(
+    shader: &Shader,
+    camera: &Camera,
+    light: &Lighting,
+    out_w: u32,
+    out_h: u32,
+    (near, far): (f64, f64),
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
+    let accel = shader.accel;
+    let s = accel.scene();
+    let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
+    // Grid points (NaN heights give NaN positions, whose triangles the rasteriser skips) and two
+    // triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in the ray caster.
+    let positions: Vec<[f64; 3]> = (0..s.width * s.height)
+        .map(|k| {
+            let (c, r) = (k % gw, k / gw);
+            [
+                c as f64 * s.dx - accel.half_x,
+                f64::from(s.heights[k]),
+                r as f64 * s.dy - accel.half_z,
+            ]
+        })
+        .collect();
+    let mut triangles = Vec::with_capacity(2 * cw * ch);
+    for j in 0..ch {
+        for i in 0..cw {
+            let k = (j * gw + i) as u32;
+            let (g, w1) = (gw as u32, 1u32);
+            triangles.push([k, k + w1, k + g + w1]);
+            triangles.push([k, k + g, k + g + w1]);
+        }
+    }
+    ctl.checkpoint()?;
+    // Near plane: half the distance to the bounding box, but not so close that 1/z loses the
+    // far range (geometry nearer than it would fill the view anyway).
+    let near_plane = (0.5 * near).max(1e-6 * far).max(1e-9);
+    let proj = Projection::new(camera, out_w, out_h, near_plane);
+    let rast = Rasterizer::new(
+        &Mesh {
+            positions: &positions,
+            triangles: &triangles,
+        },
+        &proj,
+    );
+    let gen = camera.ray_gen(out_w, out_h);
+    let inv_h = 1.0 / f64::from(out_h.max(1));
+    let shade = |f: Option<&raster::Fragment>, x: f64, y: f64, row: usize| -> Sample {
+        let y_frac = ((row as f64 + 0.5) * inv_h) as f32;
+        let Some(f) = f else {
+            return shader.miss(gen.dir(x, y), y_frac);
+        };
+        let cell = f.triangle as usize / 2;
+        let (col, row) = (cell % cw.max(1), cell / cw.max(1));
+        let b = f.bary;
+        let (fx, fz) = if f.triangle % 2 == 0 {
+            (b[1] + b[2], b[2])
+        } else {
+            (b[2], b[1] + b[2])
+        };
+        let mut hit = Hit {
+            t: 0.0,
+            col,
+            row,
+            fx: fx.clamp(0.0, 1.0),
+            fz: fz.clamp(0.0, 1.0),
+        };
+        let p = accel.hit_position(&hit);
+        let d = [
+            p[0] - shader.eye[0],
+            p[1] - shader.eye[1],
+            p[2] - shader.eye[2],
+        ];
+        hit.t = dot(d, d).sqrt();
+        shader.shade_hit(&hit)
+    };
+    let bands = rast.bands().max(1);
+    let done = AtomicUsize::new(0);
+    let report = || {
+        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+        let f = n as f32 / bands as f32;
+        ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
+    };
+    raster::render_adaptive(&rast, light.samples, &shade, ctl, &report)
 }
