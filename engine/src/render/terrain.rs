@@ -1078,8 +1078,8 @@ fn render_raster(
     let accel = shader.accel;
     let s = accel.scene();
     let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
-    // Grid points (NaN heights give NaN positions, whose triangles the rasteriser skips) and two
-    // triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in the ray caster.
+    // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in the
+    // ray caster, so triangle k belongs to cell k / 2.
     let positions: Vec<[f64; 3]> = (0..s.width * s.height)
         .map(|k| {
             let (c, r) = (k % gw, k / gw);
@@ -1094,9 +1094,17 @@ fn render_raster(
     for j in 0..ch {
         for i in 0..cw {
             let k = (j * gw + i) as u32;
-            let (g, w1) = (gw as u32, 1u32);
-            triangles.push([k, k + w1, k + g + w1]);
-            triangles.push([k, k + g, k + g + w1]);
+            let g = gw as u32;
+            let hs = &s.heights[k as usize..];
+            if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
+                // A hole: any nodata corner removes both triangles (as in `cell_hit`);
+                // degenerate triangles keep the index ↔ cell mapping and are skipped.
+                triangles.push([k; 3]);
+                triangles.push([k; 3]);
+            } else {
+                triangles.push([k, k + 1, k + g + 1]);
+                triangles.push([k, k + g, k + g + 1]);
+            }
         }
     }
     ctl.checkpoint()?;

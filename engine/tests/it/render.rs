@@ -773,3 +773,135 @@ fn a_ridge_casts_a_shadow_and_cancel_stops_the_render() {
     let res = render_terrain(&scene, &cam, &light, 200, 200, &ctl, (0.2, 0.6));
     assert_eq!(res, Err(phenomena_engine::Canceled));
 }
+
+/// Per-pixel agreement of two images: (share of pixels within `tol` in every channel incl.
+/// alpha, worst channel difference).
+fn agreement(a: &RgbaImage, b: &RgbaImage, tol: u8) -> (f64, u8) {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let (mut ok, mut worst) = (0usize, 0u8);
+    for (p, q) in a.data.chunks_exact(4).zip(b.data.chunks_exact(4)) {
+        let d = p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+        worst = worst.max(d);
+        ok += usize::from(d <= tol);
+    }
+    (ok as f64 / (a.data.len() / 4) as f64, worst)
+}
+
+#[test]
+fn raster_path_matches_the_ray_caster() {
+    use phenomena_engine::render::{render_with_path, RenderPath};
+    // (name, w, h, cell, heights, albedo, camera, image size)
+    let (vw, vh, vcell, vheights, valbedo) = volcano_scene_data();
+    let rw = 120;
+    let rh = 90;
+    let rheights = random_terrain(rw, rh, 11, true);
+    let ralbedo = ramp_albedo(&rheights);
+    let cases: [(
+        &str,
+        usize,
+        usize,
+        f64,
+        &[f32],
+        &[[f32; 3]],
+        f64,
+        f64,
+        u32,
+        u32,
+    ); 3] = [
+        (
+            "volcano", vw, vh, vcell, &vheights, &valbedo, 200.0, 28.0, 900, 600,
+        ),
+        (
+            "volcano-low",
+            vw,
+            vh,
+            vcell,
+            &vheights,
+            &valbedo,
+            20.0,
+            8.0,
+            640,
+            360,
+        ),
+        (
+            "random-holes",
+            rw,
+            rh,
+            3.0,
+            &rheights,
+            &ralbedo,
+            150.0,
+            35.0,
+            480,
+            360,
+        ),
+    ];
+    for (name, w, h, cell, heights, albedo, az, el, iw, ih) in cases {
+        let scene = TerrainScene {
+            width: w,
+            height: h,
+            dx: cell,
+            dy: cell,
+            heights,
+            albedo,
+        };
+        let (c, r) = scene.bounding_sphere();
+        let cam = Camera::orbit(c, az, el, Camera::auto_distance(r, 35.0) * 0.8, 35.0);
+        let light = Lighting {
+            sun_dir: sun_direction(250.0, 35.0),
+            ..Lighting::default()
+        };
+        let acc = TerrainAccel::new(&scene);
+        let render = |p| render_with_path(&acc, &cam, &light, iw, ih, p, &NoControl, (0.0, 1.0));
+        let ray = render(RenderPath::RayCast).unwrap();
+        let ras = render(RenderPath::Raster).unwrap();
+        let (share, worst) = agreement(&ray, &ras, 3);
+        let (share8, _) = agreement(&ray, &ras, 8);
+        println!(
+            "{name}: {:.3} % within 3/255, {:.3} % within 8/255, worst {worst}",
+            share * 100.0,
+            share8 * 100.0
+        );
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+        std::fs::write(
+            dir.join(format!("{name}_ray.png")),
+            png_write::encode_rgba(&ray),
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join(format!("{name}_raster.png")),
+            png_write::encode_rgba(&ras),
+        )
+        .unwrap();
+        // Shading is identical; only silhouette and hole-edge pixels may differ (visibility of
+        // a sample right on an edge, f32 depth).
+        assert!(
+            share >= 0.99,
+            "{name}: only {:.3} % of pixels within 3/255",
+            share * 100.0
+        );
+        // Transparent pixels (holes) agree too.
+        let transparent = |i: &RgbaImage| i.data.chunks_exact(4).filter(|p| p[3] == 0).count();
+        let (ta, tb) = (transparent(&ray), transparent(&ras));
+        assert!(
+            ta.abs_diff(tb) <= ta / 50 + 20,
+            "{name}: transparent {ta} vs {tb}"
+        );
+        if name == "random-holes" {
+            assert!(ta > 100, "holes visible: {ta}");
+        }
+        // Raster path: the same bytes with 1 and 2 threads.
+        let pool = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        };
+        let one = pool(1).install(|| render(RenderPath::Raster).unwrap());
+        let two = pool(2).install(|| render(RenderPath::Raster).unwrap());
+        assert!(
+            one == two && one == ras,
+            "{name}: raster bytes depend on the thread count"
+        );
+    }
+}
