@@ -1,1 +1,181 @@
-fn main() {}
+//! Criterion benches of the `snow-terrain` pipeline, one per stage (STYLE habit 10), on real data.
+//!
+//! Input: the Tanzawa–Sagami ASTER GDEM2 tile in `../shared/data/dem` (884 × 868, ~25–31 m cells).
+//! The paper's case crops it to 400 × 200; the N² cases (N = 1024…8192) tile it by mirroring
+//! (so the terrain stays continuous across the seams), because no real DEM we ship is that large.
+//!
+//! Run: `cargo bench --bench snow_terrain` (a few minutes on 2 cores). `SNOW_BENCH_8192=0` skips
+//! the 8192² descriptor (needs ~2.5 GB).
+#![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use phenomena_engine::formats::dem::{decode_dem, DemOptions};
+use phenomena_engine::formats::png_write::encode_rgba;
+use phenomena_engine::geom::Dem;
+use phenomena_engine::pipeline::Limits;
+use phenomena_engine::render::camera::Camera;
+use phenomena_engine::render::terrain::{
+    render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
+};
+use phenomena_engine::snow_terrain::altitude::apply_altitude;
+use phenomena_engine::snow_terrain::colour::albedo;
+use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
+use phenomena_engine::snow_terrain::smooth::smooth_diamond;
+use phenomena_engine::snow_terrain::sun::{apply_sun, Sun};
+use phenomena_engine::snow_terrain::transfer::transfer_grid;
+use phenomena_engine::snow_terrain::tsa::{tangent_sphere_accessibility, TsaGrid};
+use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::NoControl;
+
+fn tanzawa() -> Dem {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/dem/tanzawa_sagami_aster_gdem2.tif");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    decode_dem(&bytes, Some("tanzawa.tif"), &DemOptions::default()).expect("decodes")
+}
+
+/// `w × h` window of `src` tiled by mirroring (row 0 / column 0 at the source's north-west).
+pub fn mirrored(src: &Dem, w: usize, h: usize) -> Dem {
+    let fold = |i: usize, n: usize| {
+        let p = i % (2 * n);
+        if p < n {
+            p
+        } else {
+            2 * n - 1 - p
+        }
+    };
+    let mut heights = Vec::with_capacity(w * h);
+    for r in 0..h {
+        let sr = fold(r, src.height);
+        for c in 0..w {
+            heights.push(src.heights[sr * src.width + fold(c, src.width)]);
+        }
+    }
+    Dem {
+        width: w,
+        height: h,
+        heights,
+        dx: src.dx,
+        dy: src.dy,
+        georef: Default::default(),
+    }
+}
+
+fn params(width: u32, height: u32) -> Params {
+    let v = serde_json::json!({ "width": width, "height": height });
+    Params::from_json(&v, &Limits::default()).expect("valid params")
+}
+
+/// The render of `run` with default parameters (camera and lighting as `run` builds them).
+fn render(dem: &Dem, colour: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::render::RgbaImage {
+    let scene = TerrainScene {
+        width: dem.width,
+        height: dem.height,
+        dx: dem.dx,
+        dy: dem.dy,
+        heights: &dem.heights,
+        albedo: colour,
+    };
+    let accel = TerrainAccel::new(&scene);
+    let (center, radius) = scene.bounding_sphere();
+    let camera = Camera::orbit(center, 200.0, 30.0, Camera::auto_distance(radius, 40.0), 40.0);
+    let light = Lighting {
+        sun_dir: sun_direction(180.0, 35.0),
+        ..Lighting::default()
+    };
+    render_with(&accel, &camera, &light, w, h, &NoControl, (0.0, 1.0)).expect("not canceled")
+}
+
+fn stages(c: &mut Criterion) {
+    let src = tanzawa();
+    let p = DescriptorParams::default();
+    let mut g = c.benchmark_group("snow_terrain");
+    g.sample_size(10).warm_up_time(Duration::from_secs(1));
+
+    // The paper's case end to end (descriptor, colour, render, all outputs).
+    let paper = mirrored(&src, 400, 200);
+    let pp = params(900, 600);
+    g.measurement_time(Duration::from_secs(5));
+    g.bench_function("paper_400x200_900x600", |b| {
+        b.iter(|| run(&paper, &pp, &NoControl).expect("not canceled"))
+    });
+
+    // Stages at 4096².
+    let n = 4096;
+    let dem = mirrored(&src, n, n);
+    let d = compute(&dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
+    g.measurement_time(Duration::from_secs(8));
+    g.bench_function(format!("smooth_{n}"), |b| {
+        b.iter(|| smooth_diamond(&dem.heights, n, n, p.smooth_radius, p.smooth_iterations))
+    });
+    let grid = TsaGrid {
+        heights: &d.smoothed,
+        width: n,
+        height: n,
+        dx: dem.dx as f32,
+        dy: dem.dy as f32,
+    };
+    g.bench_function(format!("tsa_{n}"), |b| {
+        b.iter(|| tangent_sphere_accessibility(grid, p.tsa_window, p.tsa_max))
+    });
+    g.bench_function(format!("transfer_altitude_{n}"), |b| {
+        b.iter(|| {
+            let mut t = d.tsa.clone();
+            transfer_grid(&mut t, p.probe_radius, p.b);
+            apply_altitude(&mut t, &dem.heights, p.snowline, p.altitude_exponent);
+            t
+        })
+    });
+    g.bench_function(format!("smooth_t_{n}"), |b| {
+        b.iter(|| smooth_diamond(&d.t, n, n, p.smooth_radius, p.descriptor_smooth_iterations))
+    });
+    let sun = Sun {
+        azimuth_deg: p.sun_azimuth_deg,
+        spread_deg: p.sun_spread_deg,
+        min_slope_deg: p.sun_min_slope_deg,
+    };
+    g.bench_function(format!("sun_{n}"), |b| {
+        b.iter(|| {
+            let mut t = d.t.clone();
+            apply_sun(&mut t, &d.smoothed, n, n, dem.dx as f32, dem.dy as f32, sun);
+            t
+        })
+    });
+    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+    g.bench_function(format!("colour_{n}"), |b| {
+        b.iter(|| albedo(&d.t, [110, 102, 92], [244, 247, 251]))
+    });
+    g.bench_function(format!("render_1080p_{n}"), |b| {
+        b.iter(|| render(&dem, &colour, 1920, 1080))
+    });
+    let image = render(&dem, &colour, 1920, 1080);
+    g.bench_function("encode_png_1080p", |b| b.iter(|| encode_rgba(&image)));
+    g.bench_function(format!("descriptor_render_png_{n}"), |b| {
+        b.iter(|| {
+            let d = compute(&dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
+            let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+            encode_rgba(&render(&dem, &colour, 1920, 1080))
+        })
+    });
+    drop((d, colour, image, dem));
+
+    // Scaling of the descriptor with the number of cells.
+    let mut sizes = vec![1024, 2048, 4096];
+    if std::env::var("SNOW_BENCH_8192").map_or(true, |v| v != "0") {
+        sizes.push(8192);
+    }
+    for n in sizes {
+        let dem = mirrored(&src, n, n);
+        g.measurement_time(Duration::from_secs(if n >= 8192 { 20 } else { 5 }));
+        g.bench_with_input(BenchmarkId::new("descriptor", n), &dem, |b, dem| {
+            b.iter(|| compute(dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled"))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, stages);
+criterion_main!(benches);

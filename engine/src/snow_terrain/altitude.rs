@@ -19,13 +19,13 @@
 
 use rayon::prelude::*;
 
-/// Highest valid value of `heights`, `None` if all are nodata.
+/// Highest valid value of `heights`, `None` if all are nodata. Parallel; the maximum does not
+/// depend on the order, so neither does the result.
 pub fn max_height(heights: &[f32]) -> Option<f32> {
     heights
-        .iter()
-        .copied()
-        .filter(|h| !h.is_nan())
-        .reduce(f32::max)
+        .par_chunks(1 << 16)
+        .filter_map(|c| c.iter().copied().filter(|h| !h.is_nan()).reduce(f32::max))
+        .reduce_with(f32::max)
 }
 
 /// a(h) above, in [0, 1]. `h_max` is the highest elevation (metres); `exponent` > 0.
@@ -57,12 +57,19 @@ pub fn apply_altitude(t: &mut [f32], heights: &[f32], snowline: f32, exponent: f
     };
     t.par_iter_mut()
         .zip(heights.par_iter())
-        .for_each(|(t, &h)| {
-            if !t.is_nan() {
-                let s = (1.0 - *t) * altitude_factor(h, snowline, h_max, exponent);
-                *t = 1.0 - s;
-            }
-        });
+        .for_each(|(t, &h)| *t = altitude(*t, h, snowline, h_max, exponent));
+}
+
+/// The altitude term for one cell: `1 − (1 − t) · a(h)`, NaN for NaN `t`. `h_max` from
+/// [`max_height`]. Used by [`apply_altitude`] and by the descriptor's fused transfer pass.
+#[inline]
+pub fn altitude(t: f32, h: f32, snowline: f32, h_max: f32, exponent: f32) -> f32 {
+    if t.is_nan() {
+        t
+    } else {
+        let s = (1.0 - t) * altitude_factor(h, snowline, h_max, exponent);
+        1.0 - s
+    }
 }
 
 #[cfg(test)]

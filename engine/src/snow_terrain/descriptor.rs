@@ -16,10 +16,12 @@
 
 use std::time::Instant;
 
-use super::altitude::apply_altitude;
+use rayon::prelude::*;
+
+use super::altitude::{altitude, max_height};
 use super::smooth::Smoother;
 use super::sun::{apply_sun, Sun};
-use super::transfer::transfer_grid;
+use super::transfer::transfer;
 use super::tsa::{tsa_rows, TsaGrid};
 use crate::control::{Canceled, Control};
 use crate::geom::Dem;
@@ -194,26 +196,32 @@ pub fn compute(
     }
     timings.push(("tsa", ms(t0)));
 
-    // 3. Transfer function.
+    // 3–4. Transfer function and altitude (on the original heights), fused into the reload of
+    // the smoother for step 5: one pass, no temporary grid. t is NaN exactly where the heights
+    // are, so step 5 reuses the buffers and neighbour counts of step 1. "altitude" times the
+    // h_max scan, "transfer" the fused pass.
     prog.report(2, 0.0);
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    let mut t = tsa.clone();
-    transfer_grid(&mut t, p.probe_radius, p.b);
-    timings.push(("transfer", ms(t0)));
-
-    // 4. Altitude, on the original heights.
+    let h_max = max_height(&dem.heights);
+    let altitude_ms = ms(t0);
     prog.report(3, 0.0);
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    apply_altitude(&mut t, &dem.heights, p.snowline, p.altitude_exponent);
-    timings.push(("altitude", ms(t0)));
+    let (r, b, line, exp) = (p.probe_radius, p.b, p.snowline, p.altitude_exponent);
+    sm.reload_with(&tsa, &dem.heights, |v, h| {
+        let t = transfer(v, r, b);
+        match h_max {
+            Some(h_max) => altitude(t, h, line, h_max, exp),
+            None => t,
+        }
+    });
+    timings.push(("transfer", ms(t0)));
+    timings.push(("altitude", altitude_ms));
 
     // 5. Smooth t.
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    // t is NaN exactly where the heights are: reuse the buffers and neighbour counts of step 1.
-    sm.reload(&t);
     for i in 0..p.descriptor_smooth_iterations {
         prog.report(4, i as f32 / p.descriptor_smooth_iterations as f32);
         ctl.checkpoint()?;
@@ -232,11 +240,11 @@ pub fn compute(
         min_slope_deg: p.sun_min_slope_deg,
     };
     apply_sun(&mut t, &smoothed, w, h, dem.dx as f32, dem.dy as f32, sun);
-    for v in &mut t {
+    t.par_iter_mut().for_each(|v| {
         if !v.is_nan() {
             *v = v.clamp(0.0, 1.0);
         }
-    }
+    });
     timings.push(("sun", ms(t0)));
     prog.report(STAGES.len(), 0.0);
 

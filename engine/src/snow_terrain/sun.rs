@@ -21,7 +21,11 @@
 //! each quad's four triangle factors and summing them per corner; a point adds the corner sums of its
 //! four quads in a fixed order, so results do not depend on the thread count. The angle uses a
 //! branch-free polynomial `atan2` (error < 2·10⁻⁵ rad ≈ 0.001°) because the standard one dominated
-//! the stage's time. Cost: 4 triangles per quad, ~60 flops each; allocates per-band scratch.
+//! the stage's time. The per-quad corner sums are kept as a struct of arrays (eight rows of
+//! `f32`) so that both loops vectorise; the summation order is unchanged, so results are
+//! bit-identical to the first version, which kept one 32-byte struct per quad (see BENCHMARKS.md).
+//! Cost: 4 triangles per quad, ~60 flops each;
+//! allocates per-band scratch.
 
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI};
@@ -129,17 +133,28 @@ impl Kernel {
     }
 }
 
-/// Per quad: the sums of its triangles' factors and counts at each corner (NW, NE, SE, SW).
-#[derive(Default, Clone, Copy)]
+/// Per quad of one quad row (index = the quad's west column; the last entry stays 0): the sums of
+/// its triangles' factors `a` and counts `n` at each corner, NW, NE, SE, SW. Struct of arrays, so
+/// that the per-quad loop vectorises.
+#[derive(Default)]
 struct Corners {
-    a: [f32; 4],
-    n: [f32; 4],
+    a: [Vec<f32>; 4],
+    n: [Vec<f32>; 4],
+}
+
+impl Corners {
+    fn reset(&mut self, w: usize) {
+        for v in self.a.iter_mut().chain(self.n.iter_mut()) {
+            v.clear();
+            v.resize(w, 0.0);
+        }
+    }
 }
 
 #[derive(Default)]
 struct Scratch {
-    above: Vec<Corners>,
-    below: Vec<Corners>,
+    above: Corners,
+    below: Corners,
 }
 
 const NW: usize = 0;
@@ -157,37 +172,47 @@ fn quad_row(
     dx: f32,
     dy: f32,
     q: isize,
-    out: &mut [Corners],
+    out: &mut Corners,
 ) {
-    out.fill(Corners::default());
-    if q < 0 || q as usize + 1 >= rows {
+    out.reset(w);
+    if q < 0 || q as usize + 1 >= rows || w < 2 {
         return;
     }
     let q = q as usize;
+    let m = w - 1;
     let (top, bot) = (&h[q * w..(q + 1) * w], &h[(q + 1) * w..(q + 2) * w]);
+    let (nw_h, ne_h, sw_h, se_h) = (&top[..m], &top[1..], &bot[..m], &bot[1..]);
     let (idx, idy) = (1.0 / dx, 1.0 / dy);
-    for c in 0..w - 1 {
-        let (nw, ne, sw, se) = (top[c], top[c + 1], bot[c], bot[c + 1]);
+    let [a_nw, a_ne, a_se, a_sw] = &mut out.a;
+    let [n_nw, n_ne, n_se, n_sw] = &mut out.n;
+    let (a_nw, a_ne, a_se, a_sw) = (
+        &mut a_nw[..m],
+        &mut a_ne[..m],
+        &mut a_se[..m],
+        &mut a_sw[..m],
+    );
+    let (n_nw, n_ne, n_se, n_sw) = (
+        &mut n_nw[..m],
+        &mut n_ne[..m],
+        &mut n_se[..m],
+        &mut n_sw[..m],
+    );
+    for c in 0..m {
+        let (nw, ne, sw, se) = (nw_h[c], ne_h[c], sw_h[c], se_h[c]);
         // Diagonal NW–SE: T1 = (NW, NE, SE), T2 = (NW, SE, SW).
         let t1 = k.factor((ne - nw) * idx, (se - ne) * idy);
         let t2 = k.factor((se - sw) * idx, (sw - nw) * idy);
         // Diagonal NE–SW: T3 = (NW, NE, SW), T4 = (NE, SE, SW).
         let t3 = k.factor((ne - nw) * idx, (sw - nw) * idy);
         let t4 = k.factor((se - sw) * idx, (se - ne) * idy);
-        out[c] = Corners {
-            a: [
-                t1.0 + t2.0 + t3.0, // NW in T1, T2, T3
-                t1.0 + t3.0 + t4.0, // NE in T1, T3, T4
-                t1.0 + t2.0 + t4.0, // SE in T1, T2, T4
-                t2.0 + t3.0 + t4.0, // SW in T2, T3, T4
-            ],
-            n: [
-                t1.1 + t2.1 + t3.1,
-                t1.1 + t3.1 + t4.1,
-                t1.1 + t2.1 + t4.1,
-                t2.1 + t3.1 + t4.1,
-            ],
-        };
+        a_nw[c] = t1.0 + t2.0 + t3.0; // NW in T1, T2, T3
+        a_ne[c] = t1.0 + t3.0 + t4.0; // NE in T1, T3, T4
+        a_se[c] = t1.0 + t2.0 + t4.0; // SE in T1, T2, T4
+        a_sw[c] = t2.0 + t3.0 + t4.0; // SW in T2, T3, T4
+        n_nw[c] = t1.1 + t2.1 + t3.1;
+        n_ne[c] = t1.1 + t3.1 + t4.1;
+        n_se[c] = t1.1 + t2.1 + t4.1;
+        n_sw[c] = t2.1 + t3.1 + t4.1;
     }
 }
 
@@ -203,8 +228,6 @@ fn band_sun(
     t: &mut [f32],
     s: &mut Scratch,
 ) {
-    s.above.resize(w, Corners::default());
-    s.below.resize(w, Corners::default());
     quad_row(k, h, w, rows, dx, dy, r0 as isize - 1, &mut s.above);
     for (i, trow) in t.chunks_mut(w).enumerate() {
         let r = r0 + i;
@@ -212,26 +235,41 @@ fn band_sun(
             std::mem::swap(&mut s.above, &mut s.below);
         }
         quad_row(k, h, w, rows, dx, dy, r as isize, &mut s.below);
-        for (c, tv) in trow.iter_mut().enumerate() {
-            // The four quads around (r, c) and the point's corner in each, in a fixed order.
-            let mut sa = 0.0f32;
-            let mut sn = 0.0f32;
-            if c > 0 {
-                sa += s.above[c - 1].a[SE];
-                sn += s.above[c - 1].n[SE];
-            }
-            sa += s.above[c].a[SW];
-            sn += s.above[c].n[SW];
-            if c > 0 {
-                sa += s.below[c - 1].a[NE];
-                sn += s.below[c - 1].n[NE];
-            }
-            sa += s.below[c].a[NW];
-            sn += s.below[c].n[NW];
+        let (up, dn) = (&s.above, &s.below);
+        // The four quads around (r, c) and the point's corner in each, in a fixed order: the
+        // north-west quad's SE corner, the north-east quad's SW, the south-west quad's NE, the
+        // south-east quad's NW (the western quads are missing in column 0).
+        let apply = |tv: &mut f32, sa: f32, sn: f32| {
             if sn > 0.0 && !tv.is_nan() {
                 let a = sa / sn;
                 *tv = *tv * a + (1.0 - a);
             }
+        };
+        let Some((t0, rest)) = trow.split_first_mut() else {
+            continue;
+        };
+        apply(
+            t0,
+            0.0 + up.a[SW][0] + dn.a[NW][0],
+            0.0 + up.n[SW][0] + dn.n[NW][0],
+        );
+        let m = rest.len();
+        let (ua_se, ua_sw, da_ne, da_nw) = (
+            &up.a[SE][..m],
+            &up.a[SW][1..=m],
+            &dn.a[NE][..m],
+            &dn.a[NW][1..=m],
+        );
+        let (un_se, un_sw, dn_ne, dn_nw) = (
+            &up.n[SE][..m],
+            &up.n[SW][1..=m],
+            &dn.n[NE][..m],
+            &dn.n[NW][1..=m],
+        );
+        for (c, tv) in rest.iter_mut().enumerate() {
+            let sa = 0.0 + ua_se[c] + ua_sw[c] + da_ne[c] + da_nw[c];
+            let sn = 0.0 + un_se[c] + un_sw[c] + dn_ne[c] + dn_nw[c];
+            apply(tv, sa, sn);
         }
     }
 }
