@@ -74,8 +74,9 @@ pub async fn run(
     let drained2 = drained.clone();
     tokio::spawn(async move {
         shutdown.await;
-        tracing::info!("shutting down: no new jobs; waiting for running jobs");
+        // Stop taking work before anything else (even logging) can fail.
         token.cancel();
+        tracing::info!("shutting down: no new jobs; waiting for running jobs");
         jobs.shutdown(grace).await;
         drained2.cancel();
     });

@@ -16,7 +16,6 @@ use super::jobs::{job_response, prefer_wait};
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::{InputRef, SubmitError, Submitted};
-use crate::store::assets::AssetRecord;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -30,13 +29,13 @@ fn empty_object() -> serde_json::Value {
     serde_json::Value::Object(Default::default())
 }
 
-/// The input as received: new bytes to store, or an existing asset.
+/// The input as received: new bytes to store, or the id of an uploaded asset.
 enum Input {
     Upload {
         bytes: bytes::Bytes,
         filename: Option<String>,
     },
-    Asset(AssetRecord),
+    Named(String),
 }
 
 /// The request key: identical pipeline, input bytes and resolved params give the same key.
@@ -90,6 +89,14 @@ pub async fn submit(
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
 
+    // A JSON body names its asset: an identical request already queued, running or done is
+    // answered before any file I/O or thread hop (the cached-submit hot path).
+    if let Input::Named(id) = &input {
+        if let Some(rec) = st.jobs.find_by_key(&request_key(pipeline, id, &params)) {
+            return respond(&st, rec, wait).await;
+        }
+    }
+
     // Store the upload (content-addressed) so a retry or a later job can name it.
     let store = st.jobs.store().clone();
     let (asset, bytes) = match input {
@@ -101,7 +108,20 @@ pub async fn submit(
                     .map_err(blocking_err)??;
             (rec, Some(bytes))
         }
-        Input::Asset(rec) => (rec, None),
+        Input::Named(id) => {
+            let found = tokio::task::spawn_blocking(move || store.get_asset(&id).ok_or(id))
+                .await
+                .map_err(blocking_err)?;
+            match found {
+                Ok(rec) => (rec, None),
+                Err(id) => {
+                    return Err(ApiError::InvalidInput {
+                        detail: format!("no asset {id:?}; upload it with POST /v1/assets"),
+                        field: Some("asset".into()),
+                    })
+                }
+            }
+        }
     };
     let key = request_key(pipeline, &asset.id, &params);
 
@@ -237,16 +257,13 @@ async fn read_json(st: &AppState, req: Request) -> Result<(serde_json::Value, In
             "params must be a JSON object",
         ));
     }
-    let store = st.jobs.store().clone();
-    let id = j.asset.clone();
-    let rec = tokio::task::spawn_blocking(move || store.get_asset(&id))
-        .await
-        .map_err(blocking_err)?
-        .ok_or_else(|| ApiError::InvalidInput {
-            detail: format!("no asset {:?}; upload it with POST /v1/assets", j.asset),
+    if !crate::store::is_sha256_hex(&j.asset) {
+        return Err(ApiError::InvalidInput {
+            detail: format!("{:?} is not an asset id (64 lowercase hex digits)", j.asset),
             field: Some("asset".into()),
-        })?;
-    Ok((j.params, Input::Asset(rec)))
+        });
+    }
+    Ok((j.params, Input::Named(j.asset)))
 }
 
 /// Keeps only the last path component of a client-supplied file name (no traversal, no control

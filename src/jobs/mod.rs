@@ -262,7 +262,7 @@ impl Jobs {
     pub fn find_by_key(&self, key: &str) -> Option<JobRecord> {
         let st = self.state();
         let id = st.by_key.get(key)?;
-        st.jobs.get(id).map(|e| view(e))
+        st.jobs.get(id).map(view)
     }
 
     /// Queues a job unless an identical request (same `key`) is queued, running or succeeded.

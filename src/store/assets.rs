@@ -36,6 +36,12 @@ impl Store {
         let now = Utc::now();
         let (rec, created) = match self.get_asset(&id) {
             Some(mut r) => {
+                // Re-uploads are frequent (every multipart submit of a cached request): rewrite
+                // the record at most once a minute, so the hot path does no synchronous write.
+                let fresh = now - r.last_used_at < chrono::Duration::seconds(60);
+                if fresh && (r.filename.is_some() || filename.is_none()) {
+                    return Ok((r, false));
+                }
                 r.last_used_at = now;
                 if r.filename.is_none() {
                     r.filename = filename.map(str::to_string);
@@ -65,8 +71,11 @@ impl Store {
         self.get_json(&self.asset_path(id)).ok()
     }
 
-    /// Marks an asset as used now.
+    /// Marks an asset as used now (skipped when it was marked less than a minute ago).
     pub fn touch_asset(&self, rec: &AssetRecord) -> Result<(), StoreError> {
+        if Utc::now() - rec.last_used_at < chrono::Duration::seconds(60) {
+            return Ok(());
+        }
         let mut r = rec.clone();
         r.last_used_at = Utc::now();
         self.put_json(&self.asset_path(&r.id), &r)
