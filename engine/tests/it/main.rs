@@ -1,7 +1,10 @@
 //! Engine integration tests, one module per area.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
+
 mod descriptor;
 mod formats;
+mod gltf_validator;
 mod golden;
 mod render;
 mod snow_terrain;
