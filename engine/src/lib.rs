@@ -12,6 +12,7 @@ pub mod output;
 pub mod params;
 pub mod pipeline;
 pub mod render;
+pub mod snow_cover;
 pub mod snow_terrain;
 
 pub use control::{Canceled, Control, NoControl};

@@ -4,4 +4,5 @@
 pub mod dem;
 pub mod geotiff_write;
 pub mod glb;
+pub mod mesh;
 pub mod png_write;

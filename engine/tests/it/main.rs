@@ -6,5 +6,7 @@ mod descriptor;
 mod formats;
 mod gltf_validator;
 mod golden;
+mod mesh_formats;
 mod render;
+mod snow_cover;
 mod snow_terrain;

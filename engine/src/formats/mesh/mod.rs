@@ -1,0 +1,1 @@
+//! Mesh readers (in progress).

@@ -1,0 +1,1 @@
+//! snow_cover tests
