@@ -45,9 +45,10 @@ use super::camera::{cross, dot, normalize, sub, Camera};
 use super::image::{linear_to_srgb8, RgbaImage};
 use crate::control::{Canceled, Control};
 
-/// Image rows per band (the unit of parallel work and binning). 16 rows: 38 bands on a 900×600
-/// image (enough to balance 2–8 threads) with a 2-row apron overhead of 12 %.
-pub const BAND: usize = 16;
+/// Image rows per band (the unit of parallel work and binning). 32 rows: 19 bands on a 900×600
+/// image (enough to balance 2–4 threads) with a 2-row apron overhead of 6 % (16 rows: 12 %,
+/// measured slower on the paper case).
+pub const BAND: usize = 32;
 
 /// Fixed-point sub-pixel precision: vertices and sample positions snap to 1/256 pixel.
 const SUB: f64 = 256.0;
@@ -139,7 +140,7 @@ impl Projection {
 }
 
 /// An indexed triangle mesh in world coordinates. Triangles with an out-of-range index or a
-/// non-finite vertex are skipped.
+/// non-finite vertex are skipped, and so are triangles past [`MAX_TRIANGLES`] (2^28).
 #[derive(Debug, Clone, Copy)]
 pub struct Mesh<'a> {
     pub positions: &'a [[f64; 3]],
@@ -188,6 +189,8 @@ struct ScreenTri {
     /// or `NO_TRI` when the vertices are the source's own, in order `perm`.
     clip: u32,
     perm: [u8; 3],
+    /// Pixel bounding box (inclusive), x0, x1, y0, y1.
+    bb: [i32; 4],
 }
 
 /// Per-vertex projection.
@@ -200,11 +203,26 @@ struct PVert {
     s: [i32; 2],
 }
 
+/// Mesh triangles per setup chunk (ids are `chunk << 16 | local`, see [`Rasterizer::new`]).
+const CHUNK: usize = 4096;
+
+/// Largest mesh accepted (triangle ids need 16 bits for the chunk); later triangles are ignored.
+pub const MAX_TRIANGLES: usize = CHUNK << 16;
+
+/// The screen triangles of one chunk, their clip table and their band bins.
+struct Part {
+    tris: Vec<ScreenTri>,
+    clipped: Vec<[[f64; 3]; 3]>,
+    /// Band b's local ids are `ids[start[b]..start[b + 1]]`.
+    start: Vec<u32>,
+    ids: Vec<u32>,
+}
+
 /// A mesh prepared for one view: projected, clipped and binned into bands.
 pub struct Rasterizer {
     proj: Projection,
-    tris: Vec<ScreenTri>,
-    clipped: Vec<[[f64; 3]; 3]>,
+    /// Screen triangles per chunk of [`CHUNK`] mesh triangles.
+    parts: Vec<Part>,
     /// Band b's triangles are `bins[bin_start[b]..bin_start[b + 1]]`.
     bin_start: Vec<usize>,
     bins: Vec<u32>,
@@ -262,9 +280,22 @@ impl Rasterizer {
                 PVert { c, out, s }
             })
             .collect();
-        const CHUNK: usize = 8192;
-        let parts: Vec<(Vec<ScreenTri>, Vec<[[f64; 3]; 3]>)> = mesh
-            .triangles
+        // Per chunk of triangles (in parallel): screen triangles, clip table and a counting sort
+        // of its screen triangles by band. Ids are `chunk << 16 | local` (a chunk of 4096
+        // triangles makes at most 7 × 4096 < 2^16 pieces), so no concatenation is needed.
+        let (w, h) = (proj.width as i64, proj.height as i64);
+        let nb = (h as usize).div_ceil(BAND);
+        let band_range = |t: &ScreenTri| -> Option<(usize, usize)> {
+            let [x0, x1, y0, y1] = t.bb.map(i64::from);
+            if x1 < 0 || x0 >= w || y1 < -1 || y0 > h {
+                return None;
+            }
+            let lo = (y0 - 1).clamp(0, h - 1) as usize / BAND;
+            let hi = (y1 + 1).clamp(0, h - 1) as usize / BAND;
+            Some((lo, hi))
+        };
+        let n = mesh.triangles.len().min(MAX_TRIANGLES);
+        let parts: Vec<Part> = mesh.triangles[..n]
             .par_chunks(CHUNK)
             .enumerate()
             .map(|(ci, chunk)| {
@@ -274,64 +305,56 @@ impl Rasterizer {
                     let src = (ci * CHUNK + k) as u32;
                     setup(proj, &planes, &pv, t, src, &mut tris, &mut clipped);
                 }
-                (tris, clipped)
+                let mut start = vec![0u32; nb + 1];
+                for t in &tris {
+                    if let Some((lo, hi)) = band_range(t) {
+                        for c in &mut start[lo + 1..=hi + 1] {
+                            *c += 1;
+                        }
+                    }
+                }
+                for b in 0..nb {
+                    start[b + 1] += start[b];
+                }
+                let mut fill = start.clone();
+                let mut ids = vec![0u32; start[nb] as usize];
+                let base = (ci as u32) << 16;
+                for (i, t) in tris.iter().enumerate() {
+                    if let Some((lo, hi)) = band_range(t) {
+                        for f in &mut fill[lo..=hi] {
+                            ids[*f as usize] = base | i as u32;
+                            *f += 1;
+                        }
+                    }
+                }
+                Part {
+                    tris,
+                    clipped,
+                    start,
+                    ids,
+                }
             })
             .collect();
-        let mut tris = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
-        let mut clipped = Vec::new();
-        for (t, c) in parts {
-            let off = clipped.len() as u32;
-            tris.extend(t.into_iter().map(|mut t| {
-                if t.clip != NO_TRI {
-                    t.clip += off;
-                }
-                t
-            }));
-            clipped.extend(c);
-        }
-        // Bin by bands (counting sort; triangle order kept within a band). A band also needs
-        // the triangles of its apron rows.
-        let (w, h) = (proj.width as i64, proj.height as i64);
-        let nb = (h as usize).div_ceil(BAND);
-        let band_range = |t: &ScreenTri| -> Option<(usize, usize)> {
-            let (x0, x1) = (min3(t.v, 0) >> 8, max3(t.v, 0) >> 8);
-            let (y0, y1) = (min3(t.v, 1) >> 8, max3(t.v, 1) >> 8);
-            if x1 < 0 || x0 >= w || y1 < -1 || y0 > h {
-                return None;
-            }
-            let lo = (y0 - 1).clamp(0, h - 1) as usize / BAND;
-            let hi = (y1 + 1).clamp(0, h - 1) as usize / BAND;
-            Some((lo, hi))
-        };
-        let mut count = vec![0usize; nb + 1];
-        for t in &tris {
-            if let Some((lo, hi)) = band_range(t) {
-                for c in &mut count[lo..=hi] {
-                    *c += 1;
-                }
-            }
-        }
+        // Merge the bins band by band in chunk order (mesh order within a band).
         let mut bin_start = vec![0usize; nb + 1];
+        let mut bins = Vec::with_capacity(parts.iter().map(|p| p.ids.len()).sum());
         for b in 0..nb {
-            bin_start[b + 1] = bin_start[b] + count[b];
-        }
-        let mut fill = bin_start.clone();
-        let mut bins = vec![0u32; bin_start[nb]];
-        for (i, t) in tris.iter().enumerate() {
-            if let Some((lo, hi)) = band_range(t) {
-                for f in &mut fill[lo..=hi] {
-                    bins[*f] = i as u32;
-                    *f += 1;
-                }
+            for p in &parts {
+                bins.extend_from_slice(&p.ids[p.start[b] as usize..p.start[b + 1] as usize]);
             }
+            bin_start[b + 1] = bins.len();
         }
         Self {
             proj: *proj,
-            tris,
-            clipped,
+            parts,
             bin_start,
             bins,
         }
+    }
+
+    #[inline]
+    fn tri(&self, id: u32) -> &ScreenTri {
+        &self.parts[(id >> 16) as usize].tris[(id & 0xFFFF) as usize]
     }
 
     /// The projection this rasteriser was built for.
@@ -346,7 +369,7 @@ impl Rasterizer {
 
     /// Number of screen triangles after clipping (a clipped triangle may become two).
     pub fn screen_triangles(&self) -> usize {
-        self.tris.len()
+        self.parts.iter().map(|p| p.tris.len()).sum()
     }
 
     /// Rasterise rows `y0..y1` (within band `band`'s rows ± 1) at the sample `offsets` (pixel
@@ -382,29 +405,38 @@ impl Rasterizer {
             o
         };
         for &id in &self.bins[self.bin_start[band]..self.bin_start[band + 1]] {
-            let t = &self.tris[id as usize];
+            let t = self.tri(id);
             let (x0, x1) = (
-                (min3(t.v, 0) >> 8).max(0),
-                (max3(t.v, 0) >> 8).min(w as i64 - 1),
+                i64::from(t.bb[0]).max(0),
+                i64::from(t.bb[1]).min(w as i64 - 1),
             );
             let (ty0, ty1) = (
-                (min3(t.v, 1) >> 8).max(y0 as i64),
-                (max3(t.v, 1) >> 8).min(y1 as i64 - 1),
+                i64::from(t.bb[2]).max(y0 as i64),
+                i64::from(t.bb[3]).min(y1 as i64 - 1),
             );
             if x0 > x1 || ty0 > ty1 {
                 continue;
             }
             let e = edges(t);
             let inv_area = 1.0 / e.area2 as f64;
+            let step = [e.a[0] * 256, e.a[1] * 256, e.a[2] * 256];
+            let mut delta = [[0i64; 3]; 65];
+            for (d, &(ox, oy)) in delta.iter_mut().zip(&offs[..ns]) {
+                *d = [
+                    e.a[0] * ox + e.b[0] * oy,
+                    e.a[1] * ox + e.b[1] * oy,
+                    e.a[2] * ox + e.b[2] * oy,
+                ];
+            }
             for py in ty0..=ty1 {
-                for (s, &(ox, oy)) in offs[..ns].iter().enumerate() {
-                    let (sx, sy) = (x0 * 256 + ox, py * 256 + oy);
-                    let mut ev = [
-                        e.a[0] * sx + e.b[0] * sy + e.c[0],
-                        e.a[1] * sx + e.b[1] * sy + e.c[1],
-                        e.a[2] * sx + e.b[2] * sy + e.c[2],
-                    ];
-                    let step = [e.a[0] * 256, e.a[1] * 256, e.a[2] * 256];
+                let (sx, sy) = (x0 * 256, py * 256);
+                let base = [
+                    e.a[0] * sx + e.b[0] * sy + e.c[0],
+                    e.a[1] * sx + e.b[1] * sy + e.c[1],
+                    e.a[2] * sx + e.b[2] * sy + e.c[2],
+                ];
+                for (s, d) in delta[..ns].iter().enumerate() {
+                    let mut ev = [base[0] + d[0], base[1] + d[1], base[2] + d[2]];
                     let row = (s * rows + (py as usize - y0)) * w;
                     for px in x0..=x1 {
                         if (ev[0] | ev[1] | ev[2]) >= 0 {
@@ -432,7 +464,7 @@ impl Rasterizer {
     /// The fragment of screen triangle `id` (from a [`VisBuffer`]) at image point (`x`, `y`):
     /// perspective-correct barycentrics of the source mesh triangle and view depth.
     pub fn fragment(&self, id: u32, x: f64, y: f64) -> Fragment {
-        let t = &self.tris[id as usize];
+        let t = self.tri(id);
         let p = |k: usize| (f64::from(t.v[k][0]) / SUB, f64::from(t.v[k][1]) / SUB);
         let (p0, p1, p2) = (p(0), p(1), p(2));
         let ed = |a: (f64, f64), b: (f64, f64)| (b.0 - a.0) * (y - a.1) - (b.1 - a.1) * (x - a.0);
@@ -452,7 +484,7 @@ impl Rasterizer {
                 bary[t.perm[k] as usize] = b[k];
             }
         } else {
-            let cb = &self.clipped[t.clip as usize];
+            let cb = &self.parts[(id >> 16) as usize].clipped[t.clip as usize];
             for k in 0..3 {
                 for (o, v) in bary.iter_mut().zip(cb[k]) {
                     *o += b[k] * v;
@@ -480,15 +512,6 @@ fn snap((x, y): (f64, f64)) -> [i32; 2] {
 #[inline]
 fn snap1(o: f64) -> i64 {
     ((o * SUB).round() as i64).clamp(0, SUB as i64 - 1)
-}
-
-#[inline]
-fn min3(v: [[i32; 2]; 3], k: usize) -> i64 {
-    i64::from(v[0][k].min(v[1][k]).min(v[2][k]))
-}
-#[inline]
-fn max3(v: [[i32; 2]; 3], k: usize) -> i64 {
-    i64::from(v[0][k].max(v[1][k]).max(v[2][k]))
 }
 
 /// Integer edge functions `E_k = a·x + b·y + c` (edge k opposite vertex k), top-left bias
@@ -673,12 +696,19 @@ fn push_tri(
         }
         None => NO_TRI,
     };
+    let bb = [
+        s[0][0].min(s[1][0]).min(s[2][0]) >> 8,
+        s[0][0].max(s[1][0]).max(s[2][0]) >> 8,
+        s[0][1].min(s[1][1]).min(s[2][1]) >> 8,
+        s[0][1].max(s[1][1]).max(s[2][1]) >> 8,
+    ];
     tris.push(ScreenTri {
         v: s,
         w,
         src,
         clip,
         perm,
+        bb,
     });
 }
 
@@ -746,6 +776,37 @@ impl Sample {
     }
 }
 
+/// A centre sample reduced to what [`Sample::differs`] compares, with the square roots taken
+/// once per pixel instead of once per comparison (same criterion).
+#[derive(Debug, Clone, Copy, Default)]
+struct Key {
+    a: f32,
+    t: f32,
+    g: [f32; 3],
+}
+
+impl Key {
+    #[inline]
+    fn of(s: &Sample) -> Self {
+        Self {
+            a: s.a,
+            t: s.t,
+            g: s.c.map(|v| v.max(0.0).sqrt()),
+        }
+    }
+
+    #[inline]
+    fn differs(&self, o: &Key) -> bool {
+        if self.a != o.a || self.t.is_finite() != o.t.is_finite() {
+            return true;
+        }
+        if self.t.is_finite() && (self.t - o.t).abs() > 0.03 * self.t.min(o.t) {
+            return true;
+        }
+        (0..3).any(|ch| (self.g[ch] - o.g[ch]).abs() > 0.025)
+    }
+}
+
 /// Write one pixel: average of `sum` (premultiplied) over `n` samples with total coverage
 /// `cover`, sRGB with straight alpha.
 #[inline]
@@ -797,8 +858,14 @@ pub fn render_adaptive(
         .par_chunks_mut(w * 4 * BAND)
         .enumerate()
         .try_for_each_init(
-            || (VisBuffer::default(), Vec::<Sample>::new()),
-            |(vis, centre), (b, out)| {
+            || {
+                (
+                    VisBuffer::default(),
+                    Vec::<Sample>::new(),
+                    Vec::<Key>::new(),
+                )
+            },
+            |(vis, centre, keys), (b, out)| {
                 ctl.checkpoint()?;
                 let (c0, c1) = (b * BAND, ((b + 1) * BAND).min(h));
                 let (y0, y1) = (c0.saturating_sub(1), (c1 + 1).min(h));
@@ -815,16 +882,19 @@ pub fn render_adaptive(
                         centre[(y - y0) * w + x] = shade(f.as_ref(), sx, sy, y);
                     }
                 }
-                let at = |x: usize, y: usize| &centre[(y - y0) * w + x];
+                keys.clear();
+                keys.extend(centre.iter().map(Key::of));
+                let at = |x: usize, y: usize| &keys[(y - y0) * w + x];
                 for (ry, row) in out.chunks_mut(w * 4).enumerate() {
                     let y = c0 + ry;
                     for (x, px) in row.chunks_exact_mut(4).enumerate() {
-                        let s0 = at(x, y);
+                        let k0 = at(x, y);
                         let refine = ns > 0
-                            && ((x > 0 && s0.differs(at(x - 1, y)))
-                                || (x + 1 < w && s0.differs(at(x + 1, y)))
-                                || (y > 0 && s0.differs(at(x, y - 1)))
-                                || (y + 1 < h && s0.differs(at(x, y + 1))));
+                            && ((x > 0 && k0.differs(at(x - 1, y)))
+                                || (x + 1 < w && k0.differs(at(x + 1, y)))
+                                || (y > 0 && k0.differs(at(x, y - 1)))
+                                || (y + 1 < h && k0.differs(at(x, y + 1))));
+                        let s0 = &centre[(y - y0) * w + x];
                         let mut sum = [s0.c[0] * s0.a, s0.c[1] * s0.a, s0.c[2] * s0.a];
                         let mut cover = s0.a;
                         let mut n = 1.0f32;

@@ -429,6 +429,38 @@ impl<'a> TerrainAccel<'a> {
         normalize([-gx, 1.0, -gz])
     }
 
+    /// [`Self::hit_normal`] from gradients precomputed per grid point (`gradients()`).
+    fn hit_normal_from(&self, hit: &Hit, g: &[[f64; 2]]) -> [f64; 3] {
+        let w = self.scene.width;
+        let k = hit.row * w + hit.col;
+        let (fx, fz) = (hit.fx, hit.fz);
+        let wt = [
+            (1.0 - fx) * (1.0 - fz),
+            fx * (1.0 - fz),
+            (1.0 - fx) * fz,
+            fx * fz,
+        ];
+        let (a, b, c, d) = (g[k], g[k + 1], g[k + w], g[k + w + 1]);
+        let gx = wt[0] * a[0] + wt[1] * b[0] + wt[2] * c[0] + wt[3] * d[0];
+        let gz = wt[0] * a[1] + wt[1] * b[1] + wt[2] * c[1] + wt[3] * d[1];
+        normalize([-gx, 1.0, -gz])
+    }
+
+    /// [`Self::gradient`] at every grid point, parallel over rows. Allocates 16 B per point.
+    fn gradients(&self) -> Vec<[f64; 2]> {
+        let s = &self.scene;
+        let mut g = vec![[0.0; 2]; s.width * s.height];
+        g.par_chunks_mut(s.width.max(1))
+            .enumerate()
+            .for_each(|(r, row)| {
+                for (c, v) in row.iter_mut().enumerate() {
+                    let (gx, gz) = self.gradient(c, r);
+                    *v = [gx, gz];
+                }
+            });
+        g
+    }
+
     /// True when nothing lies between surface point `p` and the sun (`sun` unit). One shadow ray
     /// through the pyramid, started `eps` above the surface.
     pub fn sunlit(&self, p: [f64; 3], sun: [f64; 3], eps: f64) -> bool {
@@ -775,6 +807,7 @@ fn height_range(h: &[f32]) -> Option<(f32, f32)> {
 }
 
 /// Shade one sample.
+#[derive(Clone, Copy)]
 struct Shader<'s, 'a> {
     accel: &'s TerrainAccel<'a>,
     light: &'s Lighting,
@@ -785,6 +818,9 @@ struct Shader<'s, 'a> {
     eps: f64,
     /// Per-grid-point sun visibility (small DEMs); `None` = a shadow ray per hit.
     sun_map: Option<&'s [f32]>,
+    /// Per-grid-point gradients (dh/dx, dh/dz) precomputed by the raster path; `None` =
+    /// computed per hit.
+    grads: Option<&'s [[f64; 2]]>,
 }
 
 impl Shader<'_, '_> {
@@ -822,7 +858,10 @@ impl Shader<'_, '_> {
         let albedo = acc.hit_albedo(&hit);
         let mut c = albedo;
         if l.shading {
-            let n = acc.hit_normal(&hit);
+            let n = match self.grads {
+                Some(g) => acc.hit_normal_from(&hit, g),
+                None => acc.hit_normal(&hit),
+            };
             let ndl = dot(n, self.sun);
             let mut direct = 0.0f32;
             if ndl > 0.0 && self.sun[1] > -1.0 {
@@ -979,7 +1018,12 @@ pub fn render_with_path(
     let raster = path == RenderPath::Raster;
     // The rasteriser has no per-sample rays, so it always uses the per-grid-point map.
     let sun_map = if light.shading && light.shadows && (raster || sc.width * sc.height < w * h) {
-        Some(accel.sun_visibility(sun, eps, ctl)?)
+        let t = std::time::Instant::now();
+        let m = accel.sun_visibility(sun, eps, ctl)?;
+        if std::env::var_os("RASTER_PROFILE").is_some() {
+            eprintln!("sunvis {:?}", t.elapsed());
+        }
+        Some(m)
     } else {
         None
     };
@@ -992,6 +1036,7 @@ pub fn render_with_path(
         inv_range: if far > near { 1.0 / (far - near) } else { 0.0 },
         eps,
         sun_map: sun_map.as_deref(),
+        grads: None,
     };
     if raster {
         return render_raster(&shader, camera, light, out_w, out_h, (near, far), ctl, frac);
@@ -1066,7 +1111,7 @@ pub fn render_with_path(
 /// the ray caster shades a hit (the fragment's barycentrics give the cell position).
 #[allow(clippy::too_many_arguments)]
 fn render_raster(
-    shader: &Shader,
+    base: &Shader,
     camera: &Camera,
     light: &Lighting,
     out_w: u32,
@@ -1075,7 +1120,12 @@ fn render_raster(
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
-    let accel = shader.accel;
+    let accel = base.accel;
+    let grads = accel.gradients();
+    let shader = Shader {
+        grads: Some(&grads),
+        ..*base
+    };
     let s = accel.scene();
     let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
     // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in the
@@ -1108,6 +1158,7 @@ fn render_raster(
         }
     }
     ctl.checkpoint()?;
+    let _t0 = std::time::Instant::now();
     // Near plane: half the distance to the bounding box, but not so close that 1/z loses the
     // far range (geometry nearer than it would fill the view anyway).
     let near_plane = (0.5 * near).max(1e-6 * far).max(1e-9);
@@ -1119,6 +1170,7 @@ fn render_raster(
         },
         &proj,
     );
+    let _t1 = std::time::Instant::now();
     let gen = camera.ray_gen(out_w, out_h);
     let inv_h = 1.0 / f64::from(out_h.max(1));
     let shade = |f: Option<&raster::Fragment>, x: f64, y: f64, row: usize| -> Sample {
@@ -1157,5 +1209,14 @@ fn render_raster(
         let f = n as f32 / bands as f32;
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
-    raster::render_adaptive(&rast, light.samples, &shade, ctl, &report)
+    let r = raster::render_adaptive(&rast, light.samples, &shade, ctl, &report);
+    if std::env::var_os("RASTER_PROFILE").is_some() {
+        eprintln!(
+            "setup {:?} render {:?} tris {}",
+            _t1 - _t0,
+            _t1.elapsed(),
+            rast.screen_triangles()
+        );
+    }
+    r
 }
