@@ -13,6 +13,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use phenomena_engine::formats::dem::{decode_dem, DemOptions};
+use phenomena_engine::formats::geotiff_write::write_float32_geotiff;
+use phenomena_engine::formats::glb::terrain_glb;
 use phenomena_engine::formats::png_write::encode_rgba;
 use phenomena_engine::geom::Dem;
 use phenomena_engine::pipeline::Limits;
@@ -81,7 +83,13 @@ fn render(dem: &Dem, colour: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::r
     };
     let accel = TerrainAccel::new(&scene);
     let (center, radius) = scene.bounding_sphere();
-    let camera = Camera::orbit(center, 200.0, 30.0, Camera::auto_distance(radius, 40.0), 40.0);
+    let camera = Camera::orbit(
+        center,
+        200.0,
+        30.0,
+        Camera::auto_distance(radius, 40.0),
+        40.0,
+    );
     let light = Lighting {
         sun_dir: sun_direction(180.0, 35.0),
         ..Lighting::default()
@@ -153,6 +161,14 @@ fn stages(c: &mut Criterion) {
     });
     let image = render(&dem, &colour, 1920, 1080);
     g.bench_function("encode_png_1080p", |b| b.iter(|| encode_rgba(&image)));
+    // The other outputs `run` writes in its "encode" stage (in parallel with the PNG).
+    let snow: Vec<f32> = d.t.iter().map(|&t| 1.0 - t).collect();
+    g.bench_function(format!("encode_snow_cover_tif_{n}"), |b| {
+        b.iter(|| write_float32_geotiff(n, n, &snow, &dem.georef))
+    });
+    g.bench_function(format!("encode_glb_{n}"), |b| {
+        b.iter(|| terrain_glb(&dem.heights, n, n, dem.dx, dem.dy, &colour, 262_144))
+    });
     g.bench_function(format!("descriptor_render_png_{n}"), |b| {
         b.iter(|| {
             let d = compute(&dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
@@ -160,7 +176,7 @@ fn stages(c: &mut Criterion) {
             encode_rgba(&render(&dem, &colour, 1920, 1080))
         })
     });
-    drop((d, colour, image, dem));
+    drop((d, colour, image, dem, snow));
 
     // Scaling of the descriptor with the number of cells.
     let mut sizes = vec![1024, 2048, 4096];

@@ -44,10 +44,15 @@
 //! multiplied by the vertical exaggeration).
 //!
 //! Implementation: rayon over bands of rows; per band the heights, validity and normals of the rows
-//! it reads are unpacked once into scratch (allocated once per worker split), then for each offset
-//! the bound is computed over the row as one branch-free, vectorisable loop. Each output cell is a
-//! minimum in a fixed offset order, so results are identical for any number of threads.
-//! Cost: `((2·window + 1)² − 1) · width · height` bound evaluations (~25 flops each).
+//! it reads are unpacked once into scratch (allocated once per worker split), then each pair of
+//! points (X, P) within the window is evaluated once, as one branch-free, vectorisable loop over
+//! a row, for both X's bound from P and P's bound from X, which share their dot products (see
+//! [`pair_bounds`]; pairs that straddle a band edge are evaluated by both bands). Each output cell
+//! is the minimum of its bounds, none NaN, so the order does not matter: results are identical
+//! for any number of threads, and bit-identical to the first version, which evaluated every pair
+//! twice (4096² Tanzawa, 1 thread, CPU time: 300–310 ms before, 270 ms after; the divisions,
+//! four per pair either way, dominate).
+//! Cost: `((2·window + 1)² − 1) / 2 · width · height` pair evaluations (~60 flops, 4 divisions).
 
 use rayon::prelude::*;
 use std::ops::Range;
@@ -121,6 +126,9 @@ struct Scratch {
     nx: Vec<f32>,
     ny: Vec<f32>,
     nz: Vec<f32>,
+    /// Bounds of one pair row: X's from P and P's from X.
+    fwd: Vec<f32>,
+    rev: Vec<f32>,
 }
 
 fn band_tsa(
@@ -152,55 +160,73 @@ fn band_tsa(
         );
     }
     let (hdx, hdz) = (0.5 * g.dx, 0.5 * g.dy);
-    for (k, acc) in out.chunks_mut(w).enumerate() {
-        let r = rows.start + k;
-        acc.fill(f32::INFINITY);
-        let xo = (r - lo) * w;
-        for rr in r.saturating_sub(win)..=(r + win).min(g.height - 1) {
-            let po = (rr - lo) * w;
-            let oz = (rr as f32 - r as f32) * g.dy;
-            for i in -(win as isize)..=(win as isize) {
-                if rr == r && i == 0 {
-                    continue;
-                }
-                let s_abs = i.unsigned_abs();
+    out.fill(f32::INFINITY);
+    s.fwd.resize(w, 0.0);
+    s.rev.resize(w, 0.0);
+    // Every pair (X, P = X + (di, dj)) with (di, dj) in the lower half window (di = 0 and
+    // dj > 0, or di > 0) is evaluated once and gives both X's bound from P and P's bound from X,
+    // which share the dot products; rows outside the band are only read.
+    let iw = win as isize;
+    for xr in lo..rows.end {
+        for di in 0..=win {
+            let pr = xr + di;
+            let (x_in, p_in) = (xr >= rows.start, pr >= rows.start && pr < rows.end);
+            if pr >= hi || !(x_in || p_in) {
+                continue;
+            }
+            let (xo, po) = ((xr - lo) * w, (pr - lo) * w);
+            let oz = di as f32 * g.dy;
+            for j in if di == 0 { 1..=iw } else { -iw..=iw } {
+                let s_abs = j.unsigned_abs();
                 if s_abs >= w {
                     continue;
                 }
-                // Columns c with c + i inside the row.
-                let (c0, c1) = if i >= 0 { (0, w - s_abs) } else { (s_abs, w) };
-                let (p0, p1) = (
-                    (c0 as isize + i) as usize + po,
-                    (c1 as isize + i) as usize + po,
-                );
-                let (x0, x1) = (xo + c0, xo + c1);
-                bounds(
-                    &mut acc[c0..c1],
-                    Pt {
-                        h: &s.h[x0..x1],
-                        v: &s.v[x0..x1],
-                        nx: &s.nx[x0..x1],
-                        ny: &s.ny[x0..x1],
-                        nz: &s.nz[x0..x1],
-                    },
-                    Pt {
-                        h: &s.h[p0..p1],
-                        v: &s.v[p0..p1],
-                        nx: &s.nx[p0..p1],
-                        ny: &s.ny[p0..p1],
-                        nz: &s.nz[p0..p1],
-                    },
-                    i as f32 * g.dx,
+                // Columns c of X with c + j inside the row.
+                let (c0, c1) = if j >= 0 { (0, w - s_abs) } else { (s_abs, w) };
+                let (p0, p1) = ((c0 as isize + j) as usize, (c1 as isize + j) as usize);
+                let pt = |o: usize, a: usize, b: usize| Pt {
+                    h: &s.h[o + a..o + b],
+                    v: &s.v[o + a..o + b],
+                    nx: &s.nx[o + a..o + b],
+                    ny: &s.ny[o + a..o + b],
+                    nz: &s.nz[o + a..o + b],
+                };
+                let m = c1 - c0;
+                pair_bounds(
+                    &mut s.fwd[..m],
+                    &mut s.rev[..m],
+                    pt(xo, c0, c1),
+                    pt(po, p0, p1),
+                    j as f32 * g.dx,
                     oz,
                     hdx,
                     hdz,
                 );
+                if x_in {
+                    let o = (xr - rows.start) * w;
+                    min_into(&mut out[o + c0..o + c1], &s.fwd[..m]);
+                }
+                if p_in {
+                    let o = (pr - rows.start) * w;
+                    min_into(&mut out[o + p0..o + p1], &s.rev[..m]);
+                }
             }
         }
+    }
+    for (k, acc) in out.chunks_mut(w).enumerate() {
+        let xo = (rows.start + k - lo) * w;
         let xv = &s.v[xo..xo + w];
         for (a, &ok) in acc.iter_mut().zip(xv) {
             *a = if ok > 0.0 { a.min(tsa_max) } else { f32::NAN };
         }
+    }
+}
+
+/// `acc[k] = min(acc[k], b[k])` (no NaN in `b`).
+#[inline]
+fn min_into(acc: &mut [f32], b: &[f32]) {
+    for (a, &b) in acc.iter_mut().zip(b) {
+        *a = if b < *a { b } else { *a };
     }
 }
 
@@ -288,28 +314,45 @@ struct Pt<'a> {
     nz: &'a [f32],
 }
 
-/// `acc[k] = min(acc[k], bound of X_k by P_k)` for P offset by (`ox`, `oz`) metres horizontally.
+/// For the pairs X_k, P_k (P offset by (`ox`, `oz`) metres horizontally from X): `fwd[k]` = the
+/// bound of X's sphere by P, `rev[k]` = the bound of P's sphere by X.
+///
+/// The reverse bound is the forward formula with X and P swapped; with the offset and the height
+/// difference negated, its dot products are exactly (negation is exact in IEEE arithmetic) the
+/// forward ones: `N·(P − X)` and `−M·(P − X)` swap roles and `1 − N·M` is shared. So both bounds
+/// are bit-identical to evaluating each pair twice, as the first version did, for about 60 % of
+/// the work.
 #[inline]
 #[allow(clippy::too_many_arguments)]
-fn bounds(acc: &mut [f32], x: Pt<'_>, p: Pt<'_>, ox: f32, oz: f32, hdx: f32, hdz: f32) {
-    let n = acc.len();
-    let (xh, nx, ny, nz) = (&x.h[..n], &x.nx[..n], &x.ny[..n], &x.nz[..n]);
+fn pair_bounds(
+    fwd: &mut [f32],
+    rev: &mut [f32],
+    x: Pt<'_>,
+    p: Pt<'_>,
+    ox: f32,
+    oz: f32,
+    hdx: f32,
+    hdz: f32,
+) {
+    let n = fwd.len();
+    let rev = &mut rev[..n];
+    let (xh, xv, nx, ny, nz) = (&x.h[..n], &x.v[..n], &x.nx[..n], &x.ny[..n], &x.nz[..n]);
     let (ph, pv, mx, my, mz) = (&p.h[..n], &p.v[..n], &p.nx[..n], &p.ny[..n], &p.nz[..n]);
     let horiz2 = ox * ox + oz * oz;
     for k in 0..n {
         let dh = ph[k] - xh[k];
-        // The sphere through X and P, tangent at X.
+        let d2 = horiz2 + dh * dh;
+        // N·(P − X) and (X − P)·M; for P's sphere they swap.
         let q = nx[k] * ox + ny[k] * dh + nz[k] * oz;
+        let num = -(mx[k] * ox + my[k] * dh + mz[k] * oz);
+        let den = 1.0 - (nx[k] * mx[k] + ny[k] * my[k] + nz[k] * mz[k]);
+        // X's sphere: the sphere through X and P, and Eq. 3 with P's tangent plane.
         let tp = if q > 0.0 {
-            (horiz2 + dh * dh) / (2.0 * q)
+            d2 / (2.0 * q)
         } else {
             f32::INFINITY
         };
-        // Eq. 3 with outward normals: ((X − P)·M) / (1 − N·M).
-        let num = -(mx[k] * ox + my[k] * dh + mz[k] * oz);
-        let den = 1.0 - (nx[k] * mx[k] + ny[k] * my[k] + nz[k] * mz[k]);
         let t = num / den;
-        // Touching point relative to P, horizontally: X + t(N − M) − P.
         let ex = t * (nx[k] - mx[k]) - ox;
         let ez = t * (nz[k] - mz[k]) - oz;
         // One-sided normals (borders, next to nodata) are off by O(d/R): no plane bound from them.
@@ -317,8 +360,21 @@ fn bounds(acc: &mut [f32], x: Pt<'_>, p: Pt<'_>, ox: f32, oz: f32, hdx: f32, hdz
             pv[k] > 0.75 && num > 0.0 && den > PARALLEL_EPS && ex.abs() <= hdx && ez.abs() <= hdz;
         let tpl = if plane_ok { t } else { f32::INFINITY };
         let b = if tpl < tp { tpl } else { tp };
-        let b = if pv[k] > 0.0 { b } else { f32::INFINITY };
-        acc[k] = if b < acc[k] { b } else { acc[k] };
+        fwd[k] = if pv[k] > 0.0 { b } else { f32::INFINITY };
+        // P's sphere, offset −(ox, oz), height difference −dh.
+        let tp = if num > 0.0 {
+            d2 / (2.0 * num)
+        } else {
+            f32::INFINITY
+        };
+        let t = q / den;
+        let ex = t * (mx[k] - nx[k]) + ox;
+        let ez = t * (mz[k] - nz[k]) + oz;
+        let plane_ok =
+            xv[k] > 0.75 && q > 0.0 && den > PARALLEL_EPS && ex.abs() <= hdx && ez.abs() <= hdz;
+        let tpl = if plane_ok { t } else { f32::INFINITY };
+        let b = if tpl < tp { tpl } else { tp };
+        rev[k] = if xv[k] > 0.0 { b } else { f32::INFINITY };
     }
 }
 
