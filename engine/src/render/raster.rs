@@ -439,19 +439,18 @@ impl Rasterizer {
                     let mut ev = [base[0] + d[0], base[1] + d[1], base[2] + d[2]];
                     let row = (s * rows + (py as usize - y0)) * w;
                     for px in x0..=x1 {
-                        if (ev[0] | ev[1] | ev[2]) >= 0 {
-                            // Edge k is opposite vertex k: λ_k = E_k / area.
-                            let dw = ((ev[0] + e.bias[0]) as f64 * t.w[0]
-                                + (ev[1] + e.bias[1]) as f64 * t.w[1]
-                                + (ev[2] + e.bias[2]) as f64 * t.w[2])
-                                * inv_area;
-                            let k = row + px as usize;
-                            let dw = dw as f32;
-                            if dw > buf.depth[k] {
-                                buf.depth[k] = dw;
-                                buf.tri[k] = id;
-                            }
-                        }
+                        // Branch-free: coverage is close to random on small triangles, and a
+                        // mispredicted branch per sample cost more than the arithmetic.
+                        // Edge k is opposite vertex k: λ_k = E_k / area.
+                        let dw = (((ev[0] + e.bias[0]) as f64 * t.w[0]
+                            + (ev[1] + e.bias[1]) as f64 * t.w[1]
+                            + (ev[2] + e.bias[2]) as f64 * t.w[2])
+                            * inv_area) as f32;
+                        let k = row + px as usize;
+                        let (old_d, old_t) = (buf.depth[k], buf.tri[k]);
+                        let take = ((ev[0] | ev[1] | ev[2]) >= 0) & (dw > old_d);
+                        buf.depth[k] = if take { dw } else { old_d };
+                        buf.tri[k] = if take { id } else { old_t };
                         ev[0] += step[0];
                         ev[1] += step[1];
                         ev[2] += step[2];

@@ -1017,13 +1017,10 @@ pub fn render_with_path(
     let path = path.resolve(accel.cw * accel.ch, w * h);
     let raster = path == RenderPath::Raster;
     // The rasteriser has no per-sample rays, so it always uses the per-grid-point map.
-    let sun_map = if light.shading && light.shadows && (raster || sc.width * sc.height < w * h) {
-        let t = std::time::Instant::now();
-        let m = accel.sun_visibility(sun, eps, ctl)?;
-        if std::env::var_os("RASTER_PROFILE").is_some() {
-            eprintln!("sunvis {:?}", t.elapsed());
-        }
-        Some(m)
+    let want_map = light.shading && light.shadows && (raster || sc.width * sc.height < w * h);
+    // The raster path computes the map itself, in parallel with its triangle setup.
+    let sun_map = if want_map && !raster {
+        Some(accel.sun_visibility(sun, eps, ctl)?)
     } else {
         None
     };
@@ -1039,7 +1036,15 @@ pub fn render_with_path(
         grads: None,
     };
     if raster {
-        return render_raster(&shader, camera, light, out_w, out_h, (near, far), ctl, frac);
+        let s = RasterSetup {
+            camera,
+            out_w,
+            out_h,
+            near,
+            far,
+            sun_map: want_map,
+        };
+        return render_raster(&shader, &s, ctl, frac);
     }
     let bands = h.div_ceil(BAND);
     let done = AtomicUsize::new(0);
@@ -1107,70 +1112,89 @@ pub fn render_with_path(
     Ok(img)
 }
 
-/// The raster path: the grid's triangles through [`raster::render_adaptive`], shaded exactly as
-/// the ray caster shades a hit (the fragment's barycentrics give the cell position).
-#[allow(clippy::too_many_arguments)]
-fn render_raster(
-    base: &Shader,
-    camera: &Camera,
-    light: &Lighting,
+/// View parameters of [`render_raster`].
+struct RasterSetup<'c> {
+    camera: &'c Camera,
     out_w: u32,
     out_h: u32,
-    (near, far): (f64, f64),
+    /// Distances to the nearest and farthest bounding-box points.
+    near: f64,
+    far: f64,
+    /// Compute the per-grid-point sun map.
+    sun_map: bool,
+}
+
+/// The raster path: the grid's triangles through [`raster::render_adaptive`], shaded exactly as
+/// the ray caster shades a hit (the fragment's barycentrics give the cell position). The sun
+/// map (shadow rays) runs in parallel with the mesh, gradients and triangle setup.
+fn render_raster(
+    base: &Shader,
+    v: &RasterSetup,
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
+    let (camera, out_w, out_h) = (v.camera, v.out_w, v.out_h);
     let accel = base.accel;
-    let grads = accel.gradients();
-    let shader = Shader {
-        grads: Some(&grads),
-        ..*base
-    };
     let s = accel.scene();
     let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
-    // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in the
-    // ray caster, so triangle k belongs to cell k / 2.
-    let positions: Vec<[f64; 3]> = (0..s.width * s.height)
-        .map(|k| {
-            let (c, r) = (k % gw, k / gw);
-            [
-                c as f64 * s.dx - accel.half_x,
-                f64::from(s.heights[k]),
-                r as f64 * s.dy - accel.half_z,
-            ]
-        })
-        .collect();
-    let mut triangles = Vec::with_capacity(2 * cw * ch);
-    for j in 0..ch {
-        for i in 0..cw {
-            let k = (j * gw + i) as u32;
-            let g = gw as u32;
-            let hs = &s.heights[k as usize..];
-            if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
-                // A hole: any nodata corner removes both triangles (as in `cell_hit`);
-                // degenerate triangles keep the index ↔ cell mapping and are skipped.
-                triangles.push([k; 3]);
-                triangles.push([k; 3]);
-            } else {
-                triangles.push([k, k + 1, k + g + 1]);
-                triangles.push([k, k + g, k + g + 1]);
-            }
-        }
-    }
-    ctl.checkpoint()?;
-    let _t0 = std::time::Instant::now();
-    // Near plane: half the distance to the bounding box, but not so close that 1/z loses the
-    // far range (geometry nearer than it would fill the view anyway).
-    let near_plane = (0.5 * near).max(1e-6 * far).max(1e-9);
-    let proj = Projection::new(camera, out_w, out_h, near_plane);
-    let rast = Rasterizer::new(
-        &Mesh {
-            positions: &positions,
-            triangles: &triangles,
+    let prepare = || {
+        // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in
+        // the ray caster, so triangle k belongs to cell k / 2.
+        let positions: Vec<[f64; 3]> = (0..s.width * s.height)
+            .into_par_iter()
+            .map(|k| {
+                let (c, r) = (k % gw, k / gw);
+                [
+                    c as f64 * s.dx - accel.half_x,
+                    f64::from(s.heights[k]),
+                    r as f64 * s.dy - accel.half_z,
+                ]
+            })
+            .collect();
+        let triangles: Vec<[u32; 3]> = (0..cw * ch)
+            .into_par_iter()
+            .flat_map_iter(|cell| {
+                let (i, j) = (cell % cw, cell / cw);
+                let k = (j * gw + i) as u32;
+                let g = gw as u32;
+                let hs = &s.heights[k as usize..];
+                if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
+                    // A hole: any nodata corner removes both triangles (as in `cell_hit`);
+                    // degenerate triangles keep the index ↔ cell mapping and are skipped.
+                    [[k; 3], [k; 3]]
+                } else {
+                    [[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]
+                }
+            })
+            .collect();
+        // Near plane: half the distance to the bounding box, but not so close that 1/z loses
+        // the far range (geometry nearer than it would fill the view anyway).
+        let near_plane = (0.5 * v.near).max(1e-6 * v.far).max(1e-9);
+        let proj = Projection::new(camera, out_w, out_h, near_plane);
+        let rast = Rasterizer::new(
+            &Mesh {
+                positions: &positions,
+                triangles: &triangles,
+            },
+            &proj,
+        );
+        (rast, accel.gradients())
+    };
+    let (map, (rast, grads)) = rayon::join(
+        || {
+            v.sun_map
+                .then(|| accel.sun_visibility(base.sun, base.eps, ctl))
+                .transpose()
         },
-        &proj,
+        prepare,
     );
-    let _t1 = std::time::Instant::now();
+    let map = map?;
+    ctl.checkpoint()?;
+    let shader = Shader {
+        grads: Some(&grads),
+        sun_map: map.as_deref(),
+        ..*base
+    };
     let gen = camera.ray_gen(out_w, out_h);
     let inv_h = 1.0 / f64::from(out_h.max(1));
     let shade = |f: Option<&raster::Fragment>, x: f64, y: f64, row: usize| -> Sample {
@@ -1209,14 +1233,5 @@ fn render_raster(
         let f = n as f32 / bands as f32;
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
-    let r = raster::render_adaptive(&rast, light.samples, &shade, ctl, &report);
-    if std::env::var_os("RASTER_PROFILE").is_some() {
-        eprintln!(
-            "setup {:?} render {:?} tris {}",
-            _t1 - _t0,
-            _t1.elapsed(),
-            rast.screen_triangles()
-        );
-    }
-    r
+    raster::render_adaptive(&rast, base.light.samples, &shade, ctl, &report)
 }

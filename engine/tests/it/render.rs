@@ -622,6 +622,83 @@ fn timings_paper() {
             std::fs::write(dir.join("paper_case.png"), png_write::encode_rgba(img)).unwrap();
         }
     }
+    // The same case forced through the ray caster (the path used before the rasteriser).
+    use phenomena_engine::render::{render_with_path, RenderPath};
+    time(
+        "paper, ray caster forced (incl. pyramid), 4 spp + shadows",
+        10,
+        &mut || {
+            let acc = TerrainAccel::new(&scene);
+            img = Some(
+                render_with_path(
+                    &acc,
+                    &cam,
+                    &light,
+                    900,
+                    600,
+                    RenderPath::RayCast,
+                    &NoControl,
+                    (0.0, 1.0),
+                )
+                .unwrap(),
+            )
+        },
+    );
+}
+
+/// Crossover between the two paths: the paper DEM resampled to a range of cell counts, rendered
+/// to 900×600 both ways (release; see [`timings_paper`]).
+#[test]
+#[ignore]
+fn timings_crossover() {
+    use phenomena_engine::render::{render_with_path, RenderPath};
+    use std::time::Instant;
+    let (w, _, _, colo) = load_asc("/work/shared/data/dem/colorado_front_range_srtmgl3.asc");
+    let paper: Vec<f32> = (0..200)
+        .flat_map(|r| (0..400).map(move |c| (r + 200, c + 150)))
+        .map(|(r, c)| colo[r * w + c])
+        .collect();
+    println!("rayon threads: {}", rayon::current_num_threads());
+    for ratio in [0.25f64, 0.5, 1.0, 2.0, 4.0] {
+        // cells ≈ ratio × 540,000 with the paper's 2:1 aspect.
+        let nh = ((ratio * 540_000.0 / 2.0).sqrt()) as usize + 1;
+        let nw = 2 * nh;
+        let hs = resample(&paper, 400, 200, nw, nh, 0.0);
+        let albedo = ramp_albedo(&hs);
+        let scene = TerrainScene {
+            width: nw,
+            height: nh,
+            dx: 50.0 * 400.0 / nw as f64,
+            dy: 50.0 * 200.0 / nh as f64,
+            heights: &hs,
+            albedo: &albedo,
+        };
+        let acc = TerrainAccel::new(&scene);
+        let (c, r) = scene.bounding_sphere();
+        let cam = Camera::orbit(c, 180.0, 30.0, Camera::auto_distance(r, 35.0) * 0.75, 35.0);
+        let light = Lighting {
+            sun_dir: sun_direction(230.0, 35.0),
+            ..Lighting::default()
+        };
+        let mut line = format!("cells/pixels {ratio:4.2} ({nw}x{nh}):");
+        for path in [RenderPath::RayCast, RenderPath::Raster] {
+            let run = || {
+                render_with_path(&acc, &cam, &light, 900, 600, path, &NoControl, (0.0, 1.0))
+                    .unwrap()
+            };
+            run();
+            let (t, c0) = (Instant::now(), cpu_ms());
+            for _ in 0..5 {
+                run();
+            }
+            line += &format!(
+                "  {path:?} {:7.1} ms wall {:7.1} ms cpu",
+                t.elapsed().as_secs_f64() * 1e3 / 5.0,
+                (cpu_ms() - c0) / 5.0
+            );
+        }
+        println!("{line}");
+    }
 }
 
 /// Timings for the 4096² case (release; see [`timings_paper`]).
