@@ -1,0 +1,245 @@
+//! Stanford PLY through `ply-rs-bw` 3.x (the maintained fork of `ply-rs`, free of the
+//! `linked-hash-map` soundness bug CVE-2020-25573, with capped pre-allocation): ASCII and binary
+//! little/big endian.
+//!
+//! - Element `vertex`: `x y z` (any scalar type, required), `nx ny nz` (normals), texture
+//!   coordinates as `u v`, `s t` or `texture_u texture_v`. Other properties are ignored.
+//! - Element `face`: the list `vertex_indices` (or `vertex_index`); polygons are fanned
+//!   (n − 2 triangles), faces with fewer than 3 corners are skipped, negative indices are
+//!   `Corrupt`. Other elements (`edge`, `material`, …) are read and dropped.
+//! - Limits: the header is parsed first; the `vertex` and `face` counts are checked against the
+//!   limits (a face is at least one triangle), the other elements against their sum, and for
+//!   binary files the smallest possible payload for those counts against the bytes present —
+//!   all before any element is read. The fanned triangle total is checked again before the index
+//!   buffer is allocated. One part, grey; default up axis Z.
+
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
+
+use super::{check_counts, Builder, MeshOptions, PartData, GREY};
+use crate::error::InputError;
+use crate::geom::mesh::Mesh;
+
+const FORMAT: &str = "PLY";
+
+fn corrupt(detail: impl Into<String>) -> InputError {
+    InputError::Corrupt {
+        format: FORMAT,
+        detail: detail.into(),
+    }
+}
+
+fn scalar(p: &Property) -> Option<f64> {
+    Some(match *p {
+        Property::Char(v) => f64::from(v),
+        Property::UChar(v) => f64::from(v),
+        Property::Short(v) => f64::from(v),
+        Property::UShort(v) => f64::from(v),
+        Property::Int(v) => f64::from(v),
+        Property::UInt(v) => f64::from(v),
+        Property::Float(v) => f64::from(v),
+        Property::Double(v) => v,
+        _ => return None,
+    })
+}
+
+#[derive(Default)]
+struct Vertex {
+    p: [f64; 3],
+    n: [f32; 3],
+    uv: [f32; 2],
+}
+
+impl PropertyAccess for Vertex {
+    fn new() -> Self {
+        Self::default()
+    }
+    fn set_property(&mut self, name: &str, property: Property) {
+        let Some(v) = scalar(&property) else {
+            return;
+        };
+        match name {
+            "x" => self.p[0] = v,
+            "y" => self.p[1] = v,
+            "z" => self.p[2] = v,
+            "nx" => self.n[0] = v as f32,
+            "ny" => self.n[1] = v as f32,
+            "nz" => self.n[2] = v as f32,
+            "u" | "s" | "texture_u" => self.uv[0] = v as f32,
+            "v" | "t" | "texture_v" => self.uv[1] = v as f32,
+            _ => {}
+        }
+    }
+}
+
+/// Corner indices of one face; `None` entries were negative.
+#[derive(Default)]
+struct Face {
+    corners: Vec<Option<u32>>,
+}
+
+impl PropertyAccess for Face {
+    fn new() -> Self {
+        Self::default()
+    }
+    fn set_property(&mut self, name: &str, property: Property) {
+        if name != "vertex_indices" && name != "vertex_index" {
+            return;
+        }
+        let u = |v: i64| u32::try_from(v).ok();
+        self.corners = match property {
+            Property::ListChar(v) => v.into_iter().map(|i| u(i64::from(i))).collect(),
+            Property::ListUChar(v) => v.into_iter().map(|i| Some(u32::from(i))).collect(),
+            Property::ListShort(v) => v.into_iter().map(|i| u(i64::from(i))).collect(),
+            Property::ListUShort(v) => v.into_iter().map(|i| Some(u32::from(i))).collect(),
+            Property::ListInt(v) => v.into_iter().map(|i| u(i64::from(i))).collect(),
+            Property::ListUInt(v) => v.into_iter().map(Some).collect(),
+            _ => Vec::new(),
+        };
+    }
+}
+
+/// Elements we do not use.
+struct Skip;
+
+impl PropertyAccess for Skip {
+    fn new() -> Self {
+        Skip
+    }
+}
+
+fn scalar_size(t: &ScalarType) -> u64 {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// The fewest bytes one binary element can take (lists of length 0).
+fn min_binary_size(e: &ElementDef) -> u64 {
+    e.properties
+        .values()
+        .map(|p| match &p.data_type {
+            PropertyType::Scalar(t) => scalar_size(t),
+            PropertyType::List(count, _) => scalar_size(count),
+        })
+        .sum()
+}
+
+pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputError> {
+    let mut reader: &[u8] = bytes;
+    let header = Parser::<Skip>::new()
+        .read_header(&mut reader)
+        .map_err(|e| corrupt(format!("header: {e}")))?;
+
+    let count = |name: &str| header.elements.get(name).map_or(0, |e| e.count as u64);
+    let (n_vertices, n_faces) = (count("vertex"), count("face"));
+    check_counts(n_vertices, n_faces, opts)?;
+    let others: u64 = header
+        .elements
+        .values()
+        .filter(|e| e.name != "vertex" && e.name != "face")
+        .map(|e| e.count as u64)
+        .sum();
+    let max_others = opts.max_vertices.saturating_add(opts.max_triangles);
+    if others > max_others {
+        return Err(InputError::TooLarge {
+            what: "PLY elements other than vertex and face",
+            actual: others,
+            max: max_others,
+        });
+    }
+    let vertex_def = header
+        .elements
+        .get("vertex")
+        .ok_or_else(|| InputError::Unusable("the PLY file has no vertex element".to_string()))?;
+    for axis in ["x", "y", "z"] {
+        if !vertex_def.properties.contains_key(axis) {
+            return Err(InputError::Unusable(format!(
+                "the PLY vertex element has no '{axis}' property"
+            )));
+        }
+    }
+    if header.encoding != Encoding::Ascii {
+        let needed: u64 = header
+            .elements
+            .values()
+            .map(|e| (e.count as u64).saturating_mul(min_binary_size(e)))
+            .fold(0u64, u64::saturating_add);
+        if needed > reader.len() as u64 {
+            return Err(corrupt(format!(
+                "the header's elements need at least {needed} bytes, the payload has {}",
+                reader.len()
+            )));
+        }
+    }
+    let has = |names: &[&str]| names.iter().all(|n| vertex_def.properties.contains_key(*n));
+    let has_normals = has(&["nx", "ny", "nz"]);
+    let has_uvs = has(&["u", "v"]) || has(&["s", "t"]) || has(&["texture_u", "texture_v"]);
+
+    let mut vertices: Vec<Vertex> = Vec::new();
+    let mut faces: Vec<Face> = Vec::new();
+    for (name, def) in &header.elements {
+        let what = |e: std::io::Error| corrupt(format!("element '{name}': {e}"));
+        match name.as_str() {
+            "vertex" => {
+                vertices = Parser::<Vertex>::new()
+                    .read_payload_for_element(&mut reader, def, &header)
+                    .map_err(what)?;
+            }
+            "face" => {
+                faces = Parser::<Face>::new()
+                    .read_payload_for_element(&mut reader, def, &header)
+                    .map_err(what)?;
+            }
+            _ => {
+                Parser::<Skip>::new()
+                    .read_payload_for_element(&mut reader, def, &header)
+                    .map_err(what)?;
+            }
+        }
+    }
+
+    let mut n_triangles = 0u64;
+    for f in &faces {
+        n_triangles += f.corners.len().saturating_sub(2) as u64;
+    }
+    check_counts(vertices.len() as u64, n_triangles, opts)?;
+    let mut triangles = Vec::with_capacity(n_triangles as usize);
+    for (i, f) in faces.iter().enumerate() {
+        if f.corners.len() < 3 {
+            continue;
+        }
+        let mut c = Vec::with_capacity(f.corners.len());
+        for k in &f.corners {
+            c.push(k.ok_or_else(|| corrupt(format!("face {i} has a negative vertex index")))?);
+        }
+        for k in 1..c.len() - 1 {
+            triangles.push([c[0], c[k], c[k + 1]]);
+        }
+    }
+    drop(faces);
+
+    let positions = vertices
+        .iter()
+        .map(|v| v.p.map(|c| c as f32))
+        .collect::<Vec<_>>();
+    let normals = has_normals.then(|| vertices.iter().map(|v| v.n).collect());
+    let uvs = has_uvs.then(|| vertices.iter().map(|v| v.uv).collect());
+    drop(vertices);
+    let mut builder = Builder::new();
+    builder.push_part(
+        PartData {
+            name: "ply".to_string(),
+            base_color: GREY,
+            positions,
+            normals,
+            uvs,
+            triangles,
+        },
+        FORMAT,
+    )?;
+    Ok(builder.build())
+}
