@@ -326,7 +326,8 @@ fn outflow(
     let mut total = 0u64;
     for d in 0..4 {
         if e[d] > 0.0 {
-            let a = share.min(0.5 * e[d]) / unit;
+            // At least one unit, so a drop past the tolerance always moves something.
+            let a = (share.min(0.5 * e[d]) / unit).max(1.0);
             let a = if a >= u32::MAX as f32 {
                 u32::MAX
             } else {
@@ -337,10 +338,20 @@ fn outflow(
         }
     }
     if total > u64::from(s) {
-        // Scale down to what the cell has, in integers (the sum stays ≤ s).
+        // Scale down to what the cell has, in integers; the remainder of the rounding goes to the
+        // largest share (first in direction order), so the cell gives exactly all it has.
+        let mut given = 0u64;
+        let mut largest = 0;
+        for d in 0..4 {
+            if o[d] > o[largest] {
+                largest = d;
+            }
+        }
         for v in &mut o {
             *v = (u64::from(*v) * u64::from(s) / total) as u32;
+            given += u64::from(*v);
         }
+        o[largest] += (u64::from(s) - given) as u32;
     }
     let lost: u64 = (0..4)
         .filter(|&d| links[d] == LINK_LOST)
