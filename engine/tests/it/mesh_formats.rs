@@ -728,10 +728,37 @@ fn truncated_files_are_errors_not_panics() {
 fn flipped_bytes_are_errors_or_meshes_never_panics() {
     watch_panics();
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
-    for path in REAL {
-        let bytes = std::fs::read(path).unwrap();
-        let name = name_of(path);
-        for trial in 0..24 {
+    // MESH_FUZZ_TRIALS=2000 for a longer local run.
+    let trials: usize = std::env::var("MESH_FUZZ_TRIALS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(24);
+    let mut inputs: Vec<(String, Vec<u8>)> = REAL
+        .iter()
+        .map(|p| (name_of(p).to_string(), std::fs::read(p).unwrap()))
+        .collect();
+    // Small written files, where a flip lands in the structure more often.
+    inputs.push(("s.glb".into(), glb(&gltf_json(None, 3), &gltf_bin())));
+    let mut ply = ply_quad_header("binary_little_endian").into_bytes();
+    ply.extend(PLY_VERTS.iter().flatten().enumerate().flat_map(|(k, c)| {
+        if k % 8 == 2 {
+            f64::from(*c).to_le_bytes().to_vec()
+        } else {
+            c.to_le_bytes().to_vec()
+        }
+    }));
+    ply.extend([
+        4, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 3, 0, 0, 0, 0, 1, 0, 0, 0,
+    ]);
+    ply.extend([4, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0]);
+    inputs.push(("s.ply".into(), ply));
+    inputs.push((
+        "s.obj".into(),
+        b"o a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1 4/1/1\nf -1 -2 -3\n"
+            .to_vec(),
+    ));
+    for (name, bytes) in &inputs {
+        for trial in 0..trials {
             let mut b = bytes.clone();
             // Half the trials hit the first 512 bytes (headers, JSON), half anywhere.
             for _ in 0..1 + rng.next() % 8 {
