@@ -1,5 +1,7 @@
-//! The height-field ray caster: draws a DEM at full detail, one ray per sample, without building a
-//! mesh (SPEC §1 "Rendering", with the aerial perspective of step 8).
+//! The terrain renderer (SPEC §1 "Rendering", with the aerial perspective of step 8): a
+//! height-field ray caster that draws a DEM at full detail, one ray per sample, without building a
+//! mesh, and — for DEMs with fewer cells than output pixels — the triangle rasteriser
+//! ([`super::raster`]) drawing the same surface with the same shading.
 //!
 //! **Surface.** Each grid cell (2 × 2 grid points) is two triangles split along the
 //! north-west → south-east diagonal, exactly as [`crate::formats::glb`] triangulates it; a cell with
@@ -16,9 +18,29 @@
 //! start at 16-cell nodes rather than the root (fewer visits: 19 → 15 per ray on the paper case).
 //! Cost is O(log n) nodes per ray over smooth terrain (~15 node visits and ~4 cell tests per ray
 //! on rugged 50 m terrain), and the pyramid costs n/3 floats (level 0 is the heights themselves);
-//! building it for 4096² takes ~90 ms of CPU. Rejected: a mesh rasteriser (2 triangles per cell per frame is 33 M
-//! triangles for a 4096² DEM), and fixed-step ray marching (misses thin ridges, slow at grazing
-//! angles).
+//! //! building it for 4096² takes ~90 ms of CPU. Rejected for big DEMs: a mesh rasteriser (2
+//! triangles per cell per frame is 33 M triangles for a 4096² DEM); rejected everywhere:
+//! fixed-step ray marching (misses thin ridges, slow at grazing angles).
+//!
+//! **Two paths** ([`RenderPath`]). With fewer cells than output pixels
+//! (`cells < RASTER_CELLS_PER_PIXEL × pixels`, factor 1) the triangles are cheaper to rasterise
+//! than the pixels are to ray cast: [`render_with`] builds the grid's triangles (both triangles
+//! of a cell with a nodata corner are dropped, as `cell_hit` does) and draws them with
+//! [`raster::render_adaptive`]. A fragment's perspective-correct barycentrics give the cell
+//! position (`fx`, `fz`), from which the *same* shading code as a ray hit runs (smooth normals
+//! from the same corner gradients, precomputed per grid point; bilinear albedo; the per-grid-point
+//! sun map; haze from the eye distance with the same depth range); samples that hit no triangle
+//! take the ray caster's miss rule (sky or transparent via `through_footprint`), and the AA
+//! pattern and refinement test are shared. The raster path always uses the per-grid-point sun
+//! map (it has no per-sample rays), computed in parallel with the triangle setup. Measured
+//! crossover on the paper DEM resampled to 900×600 (`timings_crossover`, 2 busy cores, CPU ms
+//! ray / raster, shadows and 4 samples): 0.25 cells per pixel 152 / 120, 0.5: 196 / 206,
+//! 1: 252 / 370, 2: 286 / 654, 4: 334 / 1204. The raster cost grows ~linearly with cells
+//! (~230 ns of CPU per cell all in: shadow ray, setup, 5-sample coverage) while the ray caster
+//! grows with log(cells), so the measured break-even with shadows is ~0.4 cells per pixel; the
+//! factor 1 is kept because the paper case (0.15) is far inside it, the rasteriser draws exact
+//! silhouettes at any size, and the per-point sun map is already used by both paths below 1.
+//! TODO: lower to 0.4 once the sun map is cheaper (it is ~30 % of the raster path's time).
 //!
 //! **Nodata and alpha.** A ray that hits nothing is *transparent* (alpha 0) if it fell through a
 //! hole: it entered the DEM's footprint from above the terrain's edge (or over a nodata stretch of
@@ -53,9 +75,13 @@
 //! **Parallelism.** Rayon over bands of 4 image rows; every pixel is computed independently, so the
 //! bytes do not depend on the thread count. No allocation per pixel; `checkpoint` per band.
 //!
-//! **Measured** (release, 2 busy cores, CPU time ÷ 2 ≈ idle wall time; `timings_*` tests in
-//! `engine/tests/it/render.rs`): paper case 400×200 → 900×600 with AA and shadows ~70 ms,
-//! one ray per pixel ~42 ms; 4096² → 1920×1080 with AA and shadows ~540 ms including the pyramid.
+//! **Measured** (release, 2 busy cores at load 6–8, CPU time ÷ 2 ≈ idle wall time; `timings_*`
+//! tests in `engine/tests/it/render.rs`): paper case 400×200 → 900×600 with AA and shadows:
+//! ray caster ~136 ms CPU (~68 ms idle wall), raster path ~100 ms CPU (~50 ms); one sample per
+//! pixel 81 → 62 ms CPU; without shading 75 → 61 ms CPU. Of the raster path's ~100 ms CPU, the
+//! sun map (80 k shadow rays) is ~30, the AA refinement (pattern coverage + extra shading) ~35,
+//! centre coverage and shading ~35. 4096² → 1920×1080 (ray cast) with AA and shadows
+//! ~1150 ms CPU (~570 ms idle wall) including the pyramid, unchanged by the raster path.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -129,9 +155,9 @@ pub struct Lighting {
     /// Extra rays for pixels that need anti-aliasing, 1..=64 (clamped; 1 = no anti-aliasing, one
     /// ray per pixel). Default: 4 (rotated grid).
     pub samples: u32,
-    /// Cast shadows. DEMs with fewer grid points than image pixels get one shadow ray per grid
-    /// point, interpolated bilinearly (soft edges one cell wide); bigger DEMs one shadow ray per
-    /// sample that hits (sharp). Default: true.
+    /// Cast shadows. DEMs with fewer grid points than image pixels (and every DEM drawn by the
+    /// rasteriser) get one shadow ray per grid point, interpolated bilinearly (soft edges one
+    /// cell wide); bigger DEMs one shadow ray per sample that hits (sharp). Default: true.
     pub shadows: bool,
 }
 
@@ -1151,22 +1177,21 @@ fn render_raster(
                 ]
             })
             .collect();
-        let triangles: Vec<[u32; 3]> = (0..cw * ch)
-            .into_par_iter()
-            .flat_map_iter(|cell| {
-                let (i, j) = (cell % cw, cell / cw);
+        let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(2 * cw * ch);
+        for j in 0..ch {
+            for i in 0..cw {
                 let k = (j * gw + i) as u32;
                 let g = gw as u32;
                 let hs = &s.heights[k as usize..];
                 if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
                     // A hole: any nodata corner removes both triangles (as in `cell_hit`);
                     // degenerate triangles keep the index ↔ cell mapping and are skipped.
-                    [[k; 3], [k; 3]]
+                    triangles.extend([[k; 3], [k; 3]]);
                 } else {
-                    [[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]
+                    triangles.extend([[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]);
                 }
-            })
-            .collect();
+            }
+        }
         // Near plane: half the distance to the bounding box, but not so close that 1/z loses
         // the far range (geometry nearer than it would fill the view anyway).
         let near_plane = (0.5 * v.near).max(1e-6 * v.far).max(1e-9);

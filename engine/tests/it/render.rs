@@ -873,18 +873,19 @@ fn raster_path_matches_the_ray_caster() {
     let rh = 90;
     let rheights = random_terrain(rw, rh, 11, true);
     let ralbedo = ramp_albedo(&rheights);
-    let cases: [(
-        &str,
+    type Case<'a> = (
+        &'a str,
         usize,
         usize,
         f64,
-        &[f32],
-        &[[f32; 3]],
+        &'a [f32],
+        &'a [[f32; 3]],
         f64,
         f64,
         u32,
         u32,
-    ); 3] = [
+    );
+    let cases: [Case; 3] = [
         (
             "volcano", vw, vh, vcell, &vheights, &valbedo, 200.0, 28.0, 900, 600,
         ),
