@@ -60,7 +60,7 @@ const SUB: f64 = 256.0;
 /// coordinates stay below 2^24 (i32) and edge-function products below 2^50 (i64).
 const GUARD: f64 = 16_384.0;
 /// Largest image side accepted by the fixed-point coverage (larger images are clamped).
-const MAX_SIDE: u32 = 32_768;
+pub const MAX_SIDE: u32 = 32_768;
 /// "No triangle" in a visibility buffer.
 pub const NO_TRI: u32 = u32::MAX;
 

@@ -987,7 +987,8 @@ pub enum RenderPath {
     Auto,
     /// Always the ray caster.
     RayCast,
-    /// Always the rasteriser.
+    /// The rasteriser, unless the image or grid is beyond its limits ([`raster::MAX_SIDE`],
+    /// [`raster::MAX_TRIANGLES`]).
     Raster,
 }
 
@@ -1040,7 +1041,11 @@ pub fn render_with_path(
     // Shadows: one ray per grid point when the grid has fewer points than the image has pixels,
     // else one ray per hit.
     let sc = accel.scene();
-    let path = path.resolve(accel.cw * accel.ch, w * h);
+    let mut path = path.resolve(accel.cw * accel.ch, w * h);
+    // Outside the rasteriser's limits (image side, triangle ids) only the ray caster is exact.
+    if out_w.max(out_h) > raster::MAX_SIDE || 2 * accel.cw * accel.ch > raster::MAX_TRIANGLES {
+        path = RenderPath::RayCast;
+    }
     let raster = path == RenderPath::Raster;
     // The rasteriser has no per-sample rays, so it always uses the per-grid-point map.
     let want_map = light.shading && light.shadows && (raster || sc.width * sc.height < w * h);
