@@ -47,7 +47,15 @@ fn camera_for(spec: &CameraSpec, scene: &TerrainScene, aspect: f64) -> Camera {
                             ]
                         })
                         .collect();
-                    Camera::orbit_framing(center, azimuth_deg, elevation_deg, fov_deg, aspect, &corners, 0.92)
+                    Camera::orbit_framing(
+                        center,
+                        azimuth_deg,
+                        elevation_deg,
+                        fov_deg,
+                        aspect,
+                        &corners,
+                        0.92,
+                    )
                 }
                 (None, None) => Camera::orbit(
                     center,

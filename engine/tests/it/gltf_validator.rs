@@ -43,25 +43,48 @@ pub fn validate_glb(name: &str, glb: &[u8]) -> Value {
         .env("NODE_PATH", dir.join("node_modules"))
         .output()
         .expect("node is needed to run the glTF validator");
-    assert!(out.status.success(), "validator failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "validator failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
 fn assert_valid(name: &str, glb: &[u8]) {
     let report = validate_glb(name, glb);
     let errors = report["issues"]["numErrors"].as_u64().unwrap();
-    assert_eq!(errors, 0, "{name}: {}", serde_json::to_string_pretty(&report["issues"]).unwrap());
+    assert_eq!(
+        errors,
+        0,
+        "{name}: {}",
+        serde_json::to_string_pretty(&report["issues"]).unwrap()
+    );
 }
 
 #[test]
 fn terrain_glb_is_valid() {
     for (file, p) in [
-        ("maunga_whau_volcano.asc", json!({"width": 32, "height": 32})),
+        (
+            "maunga_whau_volcano.asc",
+            json!({"width": 32, "height": 32}),
+        ),
         // Nodata holes drop triangles; a tight budget decimates.
-        ("luxembourg_elev.tif", json!({"width": 32, "height": 32, "mesh_max_vertices": 500})),
+        (
+            "luxembourg_elev.tif",
+            json!({"width": 32, "height": 32, "mesh_max_vertices": 500}),
+        ),
     ] {
-        let path = format!("{}/../../shared/data/dem/{file}", env!("CARGO_MANIFEST_DIR"));
-        let dem = decode_dem(&std::fs::read(path).unwrap(), Some(file), &DemOptions::default()).unwrap();
+        let path = format!(
+            "{}/../../shared/data/dem/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        let dem = decode_dem(
+            &std::fs::read(path).unwrap(),
+            Some(file),
+            &DemOptions::default(),
+        )
+        .unwrap();
         let params = Params::from_json(&p, &Limits::default()).unwrap();
         let outs = run(&dem, &params, &NoControl).unwrap();
         let glb = &outs.iter().find(|o| o.name == "terrain.glb").unwrap().bytes;

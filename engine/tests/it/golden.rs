@@ -17,7 +17,11 @@ fn decode_png(bytes: &[u8]) -> RgbaImage {
     let mut reader = dec.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size()];
     let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!(info.color_type, png::ColorType::Rgba, "golden images are RGBA");
+    assert_eq!(
+        info.color_type,
+        png::ColorType::Rgba,
+        "golden images are RGBA"
+    );
     assert_eq!(info.bit_depth, png::BitDepth::Eight);
     buf.truncate(info.buffer_size());
     RgbaImage {
@@ -31,7 +35,10 @@ fn decode_png(bytes: &[u8]) -> RgbaImage {
 /// `max_outliers` (a fraction of pixels) that may differ more — ray-cast silhouettes can flip a
 /// few edge pixels between CPUs with different FMA contraction.
 pub fn assert_golden(pipeline: &str, case: &str, img: &RgbaImage, tol: u8, max_outliers: f64) {
-    let path = root().join("tests/golden").join(pipeline).join(format!("{case}.png"));
+    let path = root()
+        .join("tests/golden")
+        .join(pipeline)
+        .join(format!("{case}.png"));
     if std::env::var_os("BLESS").is_some() && std::env::var_os("CI").is_none() {
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
         std::fs::write(&path, encode_rgba(img)).unwrap();
@@ -40,7 +47,11 @@ pub fn assert_golden(pipeline: &str, case: &str, img: &RgbaImage, tol: u8, max_o
     let bytes = std::fs::read(&path)
         .unwrap_or_else(|e| panic!("{}: {e} (run with BLESS=1 to create it)", path.display()));
     let reference = decode_png(&bytes);
-    assert_eq!((img.width, img.height), (reference.width, reference.height), "{case}: size");
+    assert_eq!(
+        (img.width, img.height),
+        (reference.width, reference.height),
+        "{case}: size"
+    );
     let mut diff = RgbaImage {
         width: img.width,
         height: img.height,
@@ -49,7 +60,12 @@ pub fn assert_golden(pipeline: &str, case: &str, img: &RgbaImage, tol: u8, max_o
     let mut outliers = 0usize;
     let mut worst = 0u8;
     for (i, (a, b)) in img.data.chunks(4).zip(reference.data.chunks(4)).enumerate() {
-        let d = a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
+        let d = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0);
         worst = worst.max(d);
         if d > tol {
             outliers += 1;
@@ -62,8 +78,16 @@ pub fn assert_golden(pipeline: &str, case: &str, img: &RgbaImage, tol: u8, max_o
     if share > max_outliers {
         let dir = root().join("target/golden-diff");
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join(format!("{pipeline}-{case}-actual.png")), encode_rgba(img)).unwrap();
-        std::fs::write(dir.join(format!("{pipeline}-{case}-diff.png")), encode_rgba(&diff)).unwrap();
+        std::fs::write(
+            dir.join(format!("{pipeline}-{case}-actual.png")),
+            encode_rgba(img),
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join(format!("{pipeline}-{case}-diff.png")),
+            encode_rgba(&diff),
+        )
+        .unwrap();
         panic!(
             "{pipeline}/{case}: {outliers} of {pixels} pixels ({:.3} %) differ by more than {tol} \
              (worst {worst}); allowed {:.3} %. See {}",

@@ -11,8 +11,16 @@ use serde_json::json;
 use crate::golden::assert_golden;
 
 fn dem(name: &str) -> phenomena_engine::geom::Dem {
-    let path = format!("{}/../../shared/data/dem/{name}", env!("CARGO_MANIFEST_DIR"));
-    decode_dem(&std::fs::read(path).unwrap(), Some(name), &DemOptions::default()).unwrap()
+    let path = format!(
+        "{}/../../shared/data/dem/{name}",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    decode_dem(
+        &std::fs::read(path).unwrap(),
+        Some(name),
+        &DemOptions::default(),
+    )
+    .unwrap()
 }
 
 fn params(v: serde_json::Value) -> Params {
@@ -30,7 +38,11 @@ fn decode_rgba(bytes: &[u8]) -> RgbaImage {
     let mut buf = vec![0; r.output_buffer_size()];
     let info = r.next_frame(&mut buf).unwrap();
     buf.truncate(info.buffer_size());
-    RgbaImage { width: info.width, height: info.height, data: buf }
+    RgbaImage {
+        width: info.width,
+        height: info.height,
+        data: buf,
+    }
 }
 
 /// Golden cases: per-channel tolerance 3/255 on at least 99.5 % of pixels (silhouette pixels may
@@ -38,7 +50,11 @@ fn decode_rgba(bytes: &[u8]) -> RgbaImage {
 #[test]
 fn golden_renders() {
     let cases = [
-        ("volcano_default", "maunga_whau_volcano.asc", json!({"width": 300, "height": 200})),
+        (
+            "volcano_default",
+            "maunga_whau_volcano.asc",
+            json!({"width": 300, "height": 200}),
+        ),
         (
             "luxembourg_nodata",
             "luxembourg_elev.tif",
@@ -52,7 +68,13 @@ fn golden_renders() {
     ];
     for (case, file, p) in cases {
         let outs = run(&dem(file), &params(p), &NoControl).unwrap();
-        assert_golden("snow-terrain", case, &decode_rgba(output(&outs, "render.png")), 3, 0.005);
+        assert_golden(
+            "snow-terrain",
+            case,
+            &decode_rgba(output(&outs, "render.png")),
+            3,
+            0.005,
+        );
     }
 }
 
@@ -60,12 +82,24 @@ fn golden_renders() {
 fn same_bytes_on_one_thread_and_two() {
     let d = dem("jacksboro_fault_dem_f32.tif");
     let p = params(json!({"width": 200, "height": 120}));
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| run(&d, &p, &NoControl).unwrap());
-    let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| run(&d, &p, &NoControl).unwrap());
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| run(&d, &p, &NoControl).unwrap());
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+        .install(|| run(&d, &p, &NoControl).unwrap());
     for (a, b) in one.iter().zip(&two) {
         assert_eq!(a.name, b.name);
         if a.name != "report.json" {
-            assert!(a.bytes == b.bytes, "{} differs between thread counts", a.name);
+            assert!(
+                a.bytes == b.bytes,
+                "{} differs between thread counts",
+                a.name
+            );
         }
     }
 }
@@ -76,9 +110,15 @@ fn nodata_is_transparent_in_the_render_and_descriptor() {
     let outs = run(&d, &params(json!({"width": 200, "height": 200, "camera": {"azimuth_deg": 180, "elevation_deg": 89}})), &NoControl).unwrap();
     let img = decode_rgba(output(&outs, "render.png"));
     let transparent = img.data.chunks(4).filter(|p| p[3] == 0).count();
-    assert!(transparent > 100, "holes seen from above are transparent ({transparent} px)");
+    assert!(
+        transparent > 100,
+        "holes seen from above are transparent ({transparent} px)"
+    );
     let desc = decode_rgba(output(&outs, "descriptor.png"));
-    assert_eq!((desc.width as usize, desc.height as usize), (d.width, d.height));
+    assert_eq!(
+        (desc.width as usize, desc.height as usize),
+        (d.width, d.height)
+    );
     let holes = desc.data.chunks(4).filter(|p| p[3] == 0).count();
     assert_eq!(holes, 3942, "every nodata cell and only those");
 }
@@ -86,7 +126,9 @@ fn nodata_is_transparent_in_the_render_and_descriptor() {
 #[test]
 fn sweep_adds_a_contact_sheet() {
     let d = dem("maunga_whau_volcano.asc");
-    let p = params(json!({"width": 240, "height": 160, "sweep": {"param": "probe_radius", "values": [200, 800, 3200]}}));
+    let p = params(
+        json!({"width": 240, "height": 160, "sweep": {"param": "probe_radius", "values": [200, 800, 3200]}}),
+    );
     assert_eq!(p.sweep_runs.len(), 3);
     assert_eq!(p.sweep_runs[1].descriptor.probe_radius, 800.0);
     let outs = run(&d, &p, &NoControl).unwrap();
@@ -95,7 +137,12 @@ fn sweep_adds_a_contact_sheet() {
     assert_eq!(sheet.width, 3 * (160 + 12) + 12);
     // More probe radius, more snow (SPEC §1 step 3): compare the descriptors of the runs.
     let snow = |r: f32| {
-        let outs = run(&d, &params(json!({"width": 32, "height": 32, "probe_radius": r})), &NoControl).unwrap();
+        let outs = run(
+            &d,
+            &params(json!({"width": 32, "height": 32, "probe_radius": r})),
+            &NoControl,
+        )
+        .unwrap();
         let rep: serde_json::Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
         rep["mean_snow"].as_f64().unwrap()
     };
@@ -107,9 +154,18 @@ fn sweep_adds_a_contact_sheet() {
 fn bad_sweeps_and_params_name_the_field() {
     let l = Limits::default();
     for (v, field) in [
-        (json!({"sweep": {"param": "width", "values": [1, 2]}}), "sweep.param"),
-        (json!({"sweep": {"param": "b", "values": [0.5]}}), "sweep.values"),
-        (json!({"sweep": {"param": "b", "values": [0.5, 2.0]}}), "sweep.values[1]"),
+        (
+            json!({"sweep": {"param": "width", "values": [1, 2]}}),
+            "sweep.param",
+        ),
+        (
+            json!({"sweep": {"param": "b", "values": [0.5]}}),
+            "sweep.values",
+        ),
+        (
+            json!({"sweep": {"param": "b", "values": [0.5, 2.0]}}),
+            "sweep.values[1]",
+        ),
         (json!({"camera": {"eye": [0, 0, 0]}}), "camera.target"),
         (json!({"camera": {"fov_deg": 0}}), "camera.fov_deg"),
         (json!({"camera": {"fovdeg": 30}}), "camera.fovdeg"),
