@@ -6,10 +6,11 @@
 //! a neighbour is *lower* when the drop `d` toward it exceeds `T` by more than the tolerance
 //! [`SLOPE_TOLERANCE`]` · cell`; its excess is `e = d − T`. No lower neighbour: nothing moves
 //! (Fig. 6 (a)). Otherwise each of the n lower neighbours receives the same share `ē / (n + 1)`
-//! (ē = mean excess; Fig. 6 (b)–(e): "split evenly"), except that no neighbour receives more than
-//! `e / 2`, which would level that pair; with one neighbour this moves exactly `e / 2`, which
+//! (ē = mean excess; Fig. 6 (b)–(e): "split evenly") times an over-relaxation ω
+//! ([`DEFAULT_RELAXATION`] = 1, plain levelling; up to 1.9 converges faster but leaves ripples), except that no neighbour receives more than
+//! `ω · e / 2` (with ω = 1: what would level that pair); with one neighbour this moves exactly `e / 2`, which
 //! brings the pair to the repose angle, and n equal neighbours of an isolated peak are brought to
-//! it exactly too. A cell never gives more snow than it has (shares are scaled down, in integer
+//! it exactly too (ω > 1 overshoots). A cell never gives more snow than it has (shares are scaled down, in integer
 //! arithmetic). After convergence every slope from a cell *that still has snow* to a linked
 //! neighbour is at most `tan(repose) + SLOPE_TOLERANCE` (plus one snow unit per cell); slopes of the
 //! bare base itself are not limited (a steep roof keeps no snow).
@@ -45,6 +46,10 @@ use crate::{Canceled, Control};
 /// Slope tolerance (in tan units) of the stabilized state; drops below `T + SLOPE_TOLERANCE · cell`
 /// do not move snow.
 pub const SLOPE_TOLERANCE: f32 = 0.01;
+/// Default over-relaxation of the moved share: 1, the paper's levelling. 1.5 halves the iterations
+/// a pile needs (measured: 472 → 228 on a 1 m pile at 256²) and keeps the repose and mass
+/// properties, but leaves ripples (a cone's profile is no longer monotone), so it is opt-in.
+pub const DEFAULT_RELAXATION: f32 = 1.0;
 /// Tile side (cells) of the active-set bookkeeping.
 const TILE: usize = 32;
 
@@ -67,6 +72,10 @@ pub struct SettleReport {
 /// Stabilization workspace for maps of one shape (buffers reused across calls).
 #[derive(Debug, Clone)]
 pub struct Settler {
+    /// Slope tolerance (tan units) of this workspace; [`SLOPE_TOLERANCE`] unless changed.
+    pub tolerance: f32,
+    /// Over-relaxation of the moved share (1 = the paper's levelling); in [0.5, 1.9].
+    pub relaxation: f32,
     nx: usize,
     nz: usize,
     out: Vec<Vec<[u32; 4]>>,
@@ -88,6 +97,8 @@ impl Settler {
         let (nx, nz) = (maps.nx, maps.nz);
         let (tx, tz) = (nx.div_ceil(TILE), nz.div_ceil(TILE));
         Self {
+            tolerance: SLOPE_TOLERANCE,
+            relaxation: DEFAULT_RELAXATION,
             nx,
             nz,
             out: (0..maps.layers.len())
@@ -117,7 +128,7 @@ impl Settler {
     ) -> Result<SettleReport, Canceled> {
         assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.out.len());
         let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
-        let tol = SLOPE_TOLERANCE * maps.cell;
+        let tol = self.tolerance * maps.cell;
         let mut rep = SettleReport::default();
         self.active.iter_mut().for_each(|a| *a = true);
         for o in &mut self.out {
@@ -126,7 +137,7 @@ impl Settler {
         while rep.iterations < max_iterations {
             ctl.checkpoint()?;
             rep.iterations += 1;
-            let (moved, lost) = self.iterate(maps, t_drop, tol);
+            let (moved, lost) = self.iterate(maps, t_drop, tol, self.relaxation);
             rep.moved_units += moved;
             rep.lost_units += lost;
             if moved == 0 {
@@ -141,7 +152,8 @@ impl Settler {
     }
 
     /// One Jacobi iteration; returns (moved, lost) units.
-    fn iterate(&mut self, maps: &mut SnowMaps, t_drop: f32, tol: f32) -> (u64, u64) {
+    #[allow(clippy::needless_range_loop)] // `i` addresses several grids and the tile spans
+    fn iterate(&mut self, maps: &mut SnowMaps, t_drop: f32, tol: f32, omega: f32) -> (u64, u64) {
         let (nx, nz, tx, tz) = (self.nx, self.nz, self.tx, self.tz);
         // Apply set = active dilated by one tile.
         for tj in 0..tz {
@@ -162,23 +174,29 @@ impl Settler {
         let maps_ref: &SnowMaps = maps;
         let active = &self.active;
         for (k, out) in self.out.iter_mut().enumerate() {
-            out.par_chunks_mut(nx)
-                .zip(self.row_sums.par_iter_mut())
+            // Rayon over bands of TILE rows; bands without an active tile are skipped.
+            out.par_chunks_mut(nx * TILE)
+                .zip(self.row_sums.par_chunks_mut(TILE))
                 .enumerate()
-                .for_each(|(j, (out_row, sums))| {
-                    *sums = (0, 0);
-                    let tj = j / TILE;
-                    for ti in 0..tx {
-                        if !active[tj * tx + ti] {
-                            continue;
-                        }
-                        let i1 = ((ti + 1) * TILE).min(nx);
-                        for i in ti * TILE..i1 {
-                            let (o, l) = outflow(maps_ref, k, i, j, t_drop, tol);
-                            out_row[i] = o;
-                            let s: u64 = o.iter().map(|&v| u64::from(v)).sum();
-                            sums.0 += s;
-                            sums.1 += l;
+                .for_each(|(tj, (out_rows, sums_rows))| {
+                    sums_rows.iter_mut().for_each(|v| *v = (0, 0));
+                    if !active[tj * tx..(tj + 1) * tx].iter().any(|&a| a) {
+                        return;
+                    }
+                    for (r, (out_row, sums)) in out_rows.chunks_mut(nx).zip(sums_rows).enumerate() {
+                        let j = tj * TILE + r;
+                        for ti in 0..tx {
+                            if !active[tj * tx + ti] {
+                                continue;
+                            }
+                            let i1 = ((ti + 1) * TILE).min(nx);
+                            for i in ti * TILE..i1 {
+                                let (o, l) = outflow(maps_ref, k, i, j, t_drop, tol, omega);
+                                out_row[i] = o;
+                                let s: u64 = o.iter().map(|&v| u64::from(v)).sum();
+                                sums.0 += s;
+                                sums.1 += l;
+                            }
                         }
                     }
                 });
@@ -200,36 +218,45 @@ impl Settler {
             // Links of all layers are read; split the borrow: take this layer's snow out.
             let mut snow = std::mem::take(&mut maps.layers[k].snow);
             let maps_ref: &SnowMaps = maps;
-            snow.par_chunks_mut(nx)
-                .zip(self.row_changed.par_chunks_mut(tx))
+            snow.par_chunks_mut(nx * TILE)
+                .zip(self.row_changed.par_chunks_mut(tx * TILE))
                 .enumerate()
-                .for_each(|(j, (row, changed))| {
-                    let tj = j / TILE;
-                    for ti in 0..tx {
-                        if !apply[tj * tx + ti] {
-                            continue;
-                        }
-                        let i1 = ((ti + 1) * TILE).min(nx);
-                        for i in ti * TILE..i1 {
-                            let c = j * nx + i;
-                            let o = out[k][c];
-                            let gone = o[0] + o[1] + o[2] + o[3];
-                            let mut got = 0u32;
-                            for d in 0..4 {
-                                let Some(c2) = maps_ref.neighbour(i, j, d) else {
-                                    continue;
-                                };
-                                let back = opposite(d);
-                                for (k2, l2) in maps_ref.layers.iter().enumerate() {
-                                    let v = out[k2][c2][back];
-                                    if v != 0 && usize::from(l2.links[c2][back]) == k {
-                                        got += v;
+                .for_each(|(tj, (rows, changed_rows))| {
+                    if !apply[tj * tx..(tj + 1) * tx].iter().any(|&a| a) {
+                        return;
+                    }
+                    for (r, (row, changed)) in rows
+                        .chunks_mut(nx)
+                        .zip(changed_rows.chunks_mut(tx))
+                        .enumerate()
+                    {
+                        let j = tj * TILE + r;
+                        for ti in 0..tx {
+                            if !apply[tj * tx + ti] {
+                                continue;
+                            }
+                            let i1 = ((ti + 1) * TILE).min(nx);
+                            for i in ti * TILE..i1 {
+                                let c = j * nx + i;
+                                let o = out[k][c];
+                                let gone = o[0] + o[1] + o[2] + o[3];
+                                let mut got = 0u32;
+                                for d in 0..4 {
+                                    let Some(c2) = maps_ref.neighbour(i, j, d) else {
+                                        continue;
+                                    };
+                                    let back = opposite(d);
+                                    for (k2, l2) in maps_ref.layers.iter().enumerate() {
+                                        let v = out[k2][c2][back];
+                                        if v != 0 && usize::from(l2.links[c2][back]) == k {
+                                            got += v;
+                                        }
                                     }
                                 }
-                            }
-                            if got != gone {
-                                row[i] = row[i] - gone + got;
-                                changed[ti] = 1;
+                                if got != gone {
+                                    row[i] = row[i] - gone + got;
+                                    changed[ti] = 1;
+                                }
                             }
                         }
                     }
@@ -286,6 +313,7 @@ fn outflow(
     j: usize,
     t_drop: f32,
     tol: f32,
+    omega: f32,
 ) -> ([u32; 4], u64) {
     let nx = maps.nx;
     let c = j * nx + i;
@@ -321,13 +349,13 @@ fn outflow(
     if n == 0 {
         return ([0; 4], 0);
     }
-    let share = sum / (n * (n + 1)) as f32;
+    let share = omega * sum / (n * (n + 1)) as f32;
     let mut o = [0u32; 4];
     let mut total = 0u64;
     for d in 0..4 {
         if e[d] > 0.0 {
             // At least one unit, so a drop past the tolerance always moves something.
-            let a = (share.min(0.5 * e[d]) / unit).max(1.0);
+            let a = (share.min(0.5 * omega * e[d]) / unit).max(1.0);
             let a = if a >= u32::MAX as f32 {
                 u32::MAX
             } else {

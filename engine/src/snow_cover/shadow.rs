@@ -49,6 +49,28 @@ pub struct ShadowMap {
     proj: Vec<[f32; 3]>,
 }
 
+/// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
+/// |x| < 2³¹.
+#[inline]
+fn ffloor(x: f32) -> f32 {
+    let t = x as i32 as f32;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
+#[inline]
+fn fceil(x: f32) -> f32 {
+    let t = x as i32 as f32;
+    if t < x {
+        t + 1.0
+    } else {
+        t
+    }
+}
+
 #[inline]
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -127,13 +149,13 @@ impl ShadowMap {
             let a = proj[tri[0] as usize];
             let b = proj[tri[1] as usize];
             let c = proj[tri[2] as usize];
-            let x0 = a[0].min(b[0]).min(c[0]).ceil().max(0.0);
-            let x1 = a[0].max(b[0]).max(c[0]).floor().min(xmax_f);
+            let x0 = fceil(a[0].min(b[0]).min(c[0])).max(0.0);
+            let x1 = ffloor(a[0].max(b[0]).max(c[0])).min(xmax_f);
             if x0 > x1 {
                 continue;
             }
-            let y0 = a[1].min(b[1]).min(c[1]).ceil().max(0.0);
-            let y1 = a[1].max(b[1]).max(c[1]).floor().min(ymax_f);
+            let y0 = fceil(a[1].min(b[1]).min(c[1])).max(0.0);
+            let y1 = ffloor(a[1].max(b[1]).max(c[1])).min(ymax_f);
             if y0 > y1 {
                 continue;
             }
@@ -196,8 +218,12 @@ impl ShadowMap {
         let inv = 1.0 / self.texel;
         let gx = (dot(p, self.u) - self.u0) * inv - 0.5;
         let gy = (dot(p, self.t) - self.t0) * inv - 0.5;
-        let (x, y) = (gx.round(), gy.round());
-        if x < 0.0 || y < 0.0 || x >= self.width as f32 || y >= self.height as f32 {
+        // Nearest texel; anything left of −0.5 is off the map (truncation would fold it onto 0).
+        if gx < -0.5 || gy < -0.5 {
+            return false;
+        }
+        let (x, y) = ((gx + 0.5) as usize as f32, (gy + 0.5) as usize as f32);
+        if x >= self.width as f32 || y >= self.height as f32 {
             return false;
         }
         self.depth[y as usize * self.width + x as usize] > dot(p, self.w) + bias

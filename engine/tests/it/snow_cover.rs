@@ -625,8 +625,9 @@ fn run_model(mesh: &Mesh) -> (SnowMaps, phenomena_engine::snow_cover::ModelRepor
 
 #[test]
 fn bit_identical_across_runs_and_thread_counts() {
-    let mut b = Builder::default();
-    b.mesh = lumpy_scene();
+    let mut b = Builder {
+        mesh: lumpy_scene(),
+    };
     b.table([6.0, 9.0], [1.0, 3.0], 0.9);
     let mesh = b.build();
     let a = run_model(&mesh);
@@ -729,8 +730,9 @@ fn timings() {
     println!("rayon threads: {}", rayon::current_num_threads());
 
     // Paper scale: 5,114 triangles, K = 5, 128² maps.
-    let mut b = Builder::default();
-    b.mesh = bumpy_scene(50, 51, 1);
+    let mut b = Builder {
+        mesh: bumpy_scene(50, 51, 1),
+    };
     b.quad(
         [
             [0.0, 1.0, 0.0],
@@ -825,4 +827,69 @@ fn timings() {
         rep.unconverged_steps,
         rep.timings
     );
+}
+
+#[test]
+#[ignore]
+fn settle_experiment() {
+    use phenomena_engine::snow_cover::Settler;
+    let mut b = Builder::default();
+    b.floor(10.24);
+    let plane = b.build();
+    let n = 256;
+    let mut maps = build_snow_maps(&plane, n, &NoControl).unwrap();
+    for j in 0..n {
+        for i in 0..n {
+            let [x, z] = maps.centre(i, j);
+            if (x - 5.12).powi(2) + (z - 5.12).powi(2) < 0.25 {
+                maps.layers[0].snow[j * n + i] = 1_000_000;
+            }
+        }
+    }
+    for tol in [0.01f32, 0.03, 0.1] {
+        for omega in [1.0f32, 1.5] {
+            let mut m = maps.clone();
+            let mut s = Settler::new(&m);
+            s.tolerance = tol;
+            s.relaxation = omega;
+            let t0 = Instant::now();
+            let rep = s.stabilize(&mut m, 45.0, 1_000_000, &NoControl).unwrap();
+            println!(
+                "tol {tol} omega {omega}: {:.0} ms, {} iterations, worst {}",
+                t0.elapsed().as_secs_f64() * 1e3,
+                rep.iterations,
+                worst_slope_excess(&m, 45.0)
+            );
+        }
+    }
+}
+
+#[test]
+#[ignore]
+fn probability_experiment() {
+    use phenomena_engine::snow_cover::shadow::ShadowMap;
+    let mesh = bumpy_scene(707, 707, 16);
+    let maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
+    let bounds = mesh.bounds().unwrap();
+    let mut sm = ShadowMap::default();
+    for d in snowfall_directions(4, 10.0, None, 1) {
+        let t0 = Instant::now();
+        sm.render(&mesh, d, bounds, maps.cell);
+        println!(
+            "render {}x{}: {:.1} ms",
+            sm.width,
+            sm.height,
+            t0.elapsed().as_secs_f64() * 1e3
+        );
+    }
+    let mut m = maps.clone();
+    for k in [1usize, 2, 8] {
+        let dirs = snowfall_directions(k, 10.0, None, 1);
+        let t0 = Instant::now();
+        snow_probability(&mesh, &mut m, &dirs, None, Receiver::Base, &NoControl).unwrap();
+        println!(
+            "probability K={k}: {:.1} ms",
+            t0.elapsed().as_secs_f64() * 1e3
+        );
+    }
 }
