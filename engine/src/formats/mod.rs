@@ -5,4 +5,5 @@ pub mod dem;
 pub mod geotiff_write;
 pub mod glb;
 pub mod mesh;
+pub mod mesh_glb;
 pub mod png_write;

@@ -7,6 +7,7 @@ mod formats;
 mod gltf_validator;
 mod golden;
 mod mesh_formats;
+mod mesh_output;
 mod render;
 mod snow_cover;
 mod snow_terrain;

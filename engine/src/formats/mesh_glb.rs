@@ -1,0 +1,357 @@
+//! Binary glTF 2.0 (GLB) export for the mesh pipelines: the snow meshes and the scene with snow
+//! (SPEC §2 "Output shape": `snow.glb`, `scene.glb`, `displaced.glb`) and the dusty mesh (SPEC §4
+//! "Outputs": `dusty.glb`).
+//!
+//! **Structure.** One glTF node per [`GlbNode`], each with its own mesh of one triangle primitive
+//! and its own material, all children of scene 0 in input order. Nodes with no triangles or no
+//! positions are skipped (the validator rejects empty accessors), so node `i` of the file is the
+//! `i`-th *non-empty* input node. No node transforms: positions are already in world space,
+//! metres, Y up (glTF's frame; see [`crate::geom::mesh`]).
+//!
+//! **Layout.** Per node, in this order: POSITION (float VEC3, with min/max), NORMAL (float VEC3,
+//! renormalised to unit length; a zero normal becomes +Y), TEXCOORD_0 (float VEC2), COLOR_0
+//! (float VEC4, linear RGBA clamped to 0..1 per the glTF spec), indices (u32), then the node's
+//! PNG texture if any (an `image/png` bufferView, sampler with REPEAT wrap and linear filters).
+//! Every bufferView starts on a 4-byte boundary. The container (chunk padding) is
+//! [`super::glb::glb_container`]'s. `asset.generator` is `"phenomena"`; `extras` goes on the root
+//! object.
+//!
+//! **Cost.** One pass over each node's arrays; allocates the binary buffer (12 B per position,
+//! 12 per normal, 8 per UV, 16 per colour, 12 per triangle, plus textures) and the output.
+//! Panics on caller bugs: attribute arrays of another length than `positions`, or an index
+//! `≥ positions.len()`.
+
+use serde_json::{json, Value};
+
+use super::glb::glb_container;
+use crate::geom::mesh::Mesh;
+
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+const FLOAT: u32 = 5126;
+const UNSIGNED_INT: u32 = 5125;
+const REPEAT: u32 = 10497;
+const LINEAR: u32 = 9729;
+
+/// One node of the output: a mesh in world space with one material.
+#[derive(Debug, Clone)]
+pub struct GlbNode<'a> {
+    /// Node, mesh and (unless the material names itself) material name.
+    pub name: &'a str,
+    /// Vertex positions, metres, Y up. Must be finite.
+    pub positions: &'a [[f32; 3]],
+    /// Per-vertex normals (renormalised on export), same length as `positions`.
+    pub normals: Option<&'a [[f32; 3]]>,
+    /// Per-vertex texture coordinates (glTF convention: v down from the image's top).
+    pub uvs: Option<&'a [[f32; 2]]>,
+    /// Per-vertex colours, linear RGBA 0..1 (exported as `COLOR_0`, multiplied by the base colour
+    /// in viewers).
+    pub colors: Option<&'a [[f32; 4]]>,
+    /// Triangles, counter-clockwise seen from outside, indices into `positions`.
+    pub triangles: &'a [[u32; 3]],
+    pub material: GlbMaterial,
+}
+
+/// A metallic-roughness material.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbMaterial {
+    /// Material name. Empty = the node's name.
+    pub name: String,
+    /// Base colour factor, linear RGBA 0..1. Default: opaque white.
+    pub base_color: [f32; 4],
+    /// Roughness 0..1. Default: 1 (matte).
+    pub roughness: f32,
+    /// Metalness 0..1. Default: 0.
+    pub metallic: f32,
+    /// `alphaMode: BLEND` (else OPAQUE). Default: false.
+    pub alpha_blend: bool,
+    /// `doubleSided`. Default: false.
+    pub double_sided: bool,
+    /// A PNG embedded as the base colour texture (sRGB, per glTF), sampled with REPEAT wrap
+    /// through `TEXCOORD_0`. Ignored when the node has no UVs. Default: none.
+    pub texture_png: Option<Vec<u8>>,
+}
+
+impl Default for GlbMaterial {
+    fn default() -> Self {
+        Self {
+            name: String::new(),
+            base_color: [1.0; 4],
+            roughness: 1.0,
+            metallic: 0.0,
+            alpha_blend: false,
+            double_sided: false,
+            texture_png: None,
+        }
+    }
+}
+
+/// Encode `nodes` as a GLB (see the module doc). `extras` (any JSON) is stored as the root
+/// object's `extras`. With no non-empty node the result is a valid GLB with an empty scene.
+pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views: Vec<Value> = Vec::new();
+    let mut accessors: Vec<Value> = Vec::new();
+    let mut gl_nodes: Vec<Value> = Vec::new();
+    let mut meshes: Vec<Value> = Vec::new();
+    let mut materials: Vec<Value> = Vec::new();
+    let mut images: Vec<Value> = Vec::new();
+    let mut textures: Vec<Value> = Vec::new();
+
+    // Append bytes as a new bufferView (4-byte aligned); returns its index.
+    let mut push_view = |bin: &mut Vec<u8>, bytes: &[u8], target: Option<u32>| -> usize {
+        while bin.len() % 4 != 0 {
+            bin.push(0);
+        }
+        let off = bin.len();
+        bin.extend_from_slice(bytes);
+        let mut v = json!({ "buffer": 0, "byteOffset": off, "byteLength": bytes.len() });
+        if let Some(t) = target {
+            v["target"] = json!(t);
+        }
+        views.push(v);
+        views.len() - 1
+    };
+
+    for node in nodes {
+        let n = node.positions.len();
+        if n == 0 || node.triangles.is_empty() {
+            continue;
+        }
+        for (what, len) in [
+            ("normals", node.normals.map(<[_]>::len)),
+            ("uvs", node.uvs.map(<[_]>::len)),
+            ("colors", node.colors.map(<[_]>::len)),
+        ] {
+            if let Some(len) = len {
+                assert_eq!(len, n, "{}: {what} must match positions", node.name);
+            }
+        }
+        let mut attributes = serde_json::Map::new();
+
+        // POSITION with bounds.
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in node.positions {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        let v = push_view(&mut bin, &flat_bytes(node.positions), Some(ARRAY_BUFFER));
+        let a = accessor(&mut accessors, v, n, "VEC3", FLOAT);
+        accessors[a]["min"] = json!(lo);
+        accessors[a]["max"] = json!(hi);
+        attributes.insert("POSITION".into(), json!(a));
+
+        if let Some(normals) = node.normals {
+            let unit: Vec<[f32; 3]> = normals.iter().map(|&v| unit_normal(v)).collect();
+            let v = push_view(&mut bin, &flat_bytes(&unit), Some(ARRAY_BUFFER));
+            attributes.insert(
+                "NORMAL".into(),
+                json!(accessor(&mut accessors, v, n, "VEC3", FLOAT)),
+            );
+        }
+        if let Some(uvs) = node.uvs {
+            let v = push_view(&mut bin, &flat_bytes(uvs), Some(ARRAY_BUFFER));
+            attributes.insert(
+                "TEXCOORD_0".into(),
+                json!(accessor(&mut accessors, v, n, "VEC2", FLOAT)),
+            );
+        }
+        if let Some(colors) = node.colors {
+            let c: Vec<[f32; 4]> = colors
+                .iter()
+                .map(|c| c.map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) }))
+                .collect();
+            let v = push_view(&mut bin, &flat_bytes(&c), Some(ARRAY_BUFFER));
+            attributes.insert(
+                "COLOR_0".into(),
+                json!(accessor(&mut accessors, v, n, "VEC4", FLOAT)),
+            );
+        }
+        let idx: Vec<u8> = node
+            .triangles
+            .iter()
+            .flat_map(|t| {
+                for &i in t {
+                    assert!((i as usize) < n, "{}: index {i} out of range", node.name);
+                }
+                *t
+            })
+            .flat_map(u32::to_le_bytes)
+            .collect();
+        let v = push_view(&mut bin, &idx, Some(ELEMENT_ARRAY_BUFFER));
+        let indices = accessor(
+            &mut accessors,
+            v,
+            node.triangles.len() * 3,
+            "SCALAR",
+            UNSIGNED_INT,
+        );
+
+        // Material (and texture).
+        let m = &node.material;
+        let mut pbr = json!({
+            "baseColorFactor": m.base_color.map(|v| if v.is_nan() { 1.0 } else { v.clamp(0.0, 1.0) }),
+            "metallicFactor": m.metallic.clamp(0.0, 1.0),
+            "roughnessFactor": m.roughness.clamp(0.0, 1.0),
+        });
+        if let (Some(png), Some(_)) = (&m.texture_png, node.uvs) {
+            let v = push_view(&mut bin, png, None);
+            images.push(json!({ "bufferView": v, "mimeType": "image/png" }));
+            textures.push(json!({ "sampler": 0, "source": images.len() - 1 }));
+            pbr["baseColorTexture"] = json!({ "index": textures.len() - 1, "texCoord": 0 });
+        }
+        let name = if m.name.is_empty() {
+            node.name
+        } else {
+            &m.name
+        };
+        let mut mat = json!({ "name": name, "pbrMetallicRoughness": pbr });
+        if m.alpha_blend {
+            mat["alphaMode"] = json!("BLEND");
+        }
+        if m.double_sided {
+            mat["doubleSided"] = json!(true);
+        }
+        materials.push(mat);
+
+        meshes.push(json!({ "name": node.name, "primitives": [{
+            "attributes": attributes, "indices": indices, "material": materials.len() - 1, "mode": 4
+        }]}));
+        gl_nodes.push(json!({ "name": node.name, "mesh": meshes.len() - 1 }));
+    }
+
+    let mut doc = json!({
+        "asset": { "version": "2.0", "generator": "phenomena" },
+        "scene": 0,
+        // An empty `nodes` array is an error for the validator: an empty scene has none.
+        "scenes": [{}],
+    });
+    if !gl_nodes.is_empty() {
+        doc["scenes"][0]["nodes"] = json!((0..gl_nodes.len()).collect::<Vec<_>>());
+        doc["nodes"] = json!(gl_nodes);
+        doc["meshes"] = json!(meshes);
+        doc["materials"] = json!(materials);
+        doc["accessors"] = json!(accessors);
+        doc["bufferViews"] = json!(views);
+        doc["buffers"] = json!([{ "byteLength": bin.len() }]);
+    }
+    if !textures.is_empty() {
+        doc["samplers"] = json!([{
+            "magFilter": LINEAR, "minFilter": LINEAR, "wrapS": REPEAT, "wrapT": REPEAT
+        }]);
+        doc["images"] = json!(images);
+        doc["textures"] = json!(textures);
+    }
+    if let Some(e) = extras {
+        doc["extras"] = e;
+    }
+    glb_container(&doc, &bin)
+}
+
+/// One part of an input [`Mesh`] as a self-contained node: only the vertices its triangles use,
+/// renumbered in first-use order. See [`scene_nodes`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartNode {
+    /// The part's name.
+    pub name: String,
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Option<Vec<[f32; 3]>>,
+    pub uvs: Option<Vec<[f32; 2]>>,
+    pub triangles: Vec<[u32; 3]>,
+    /// The part's base colour, linear RGBA.
+    pub base_color: [f32; 4],
+}
+
+impl PartNode {
+    /// A [`GlbNode`] borrowing this part, with a matte, double-sided material of the part's base
+    /// colour (alpha blended when its alpha is below 1). Input windings are not trusted, hence
+    /// double-sided.
+    pub fn node(&self) -> GlbNode<'_> {
+        GlbNode {
+            name: &self.name,
+            positions: &self.positions,
+            normals: self.normals.as_deref(),
+            uvs: self.uvs.as_deref(),
+            colors: None,
+            triangles: &self.triangles,
+            material: GlbMaterial {
+                name: self.name.clone(),
+                base_color: self.base_color,
+                alpha_blend: self.base_color[3] < 1.0,
+                double_sided: true,
+                ..GlbMaterial::default()
+            },
+        }
+    }
+}
+
+/// Split `mesh` into one [`PartNode`] per [`crate::geom::mesh::MeshPart`] (in part order), each
+/// keeping the normals and UVs the mesh has. Parts with no triangles come out empty (and
+/// [`mesh_glb`] skips them). Triangles outside every part (none for a well-formed mesh) are
+/// dropped. Allocates about the mesh's size.
+pub fn scene_nodes(mesh: &Mesh) -> Vec<PartNode> {
+    let mut remap = vec![u32::MAX; mesh.positions.len()];
+    mesh.parts
+        .iter()
+        .map(|part| {
+            let end = (part.first_triangle + part.triangle_count).min(mesh.triangles.len());
+            let start = part.first_triangle.min(end);
+            let mut used: Vec<u32> = Vec::new();
+            let triangles: Vec<[u32; 3]> = mesh.triangles[start..end]
+                .iter()
+                .map(|t| {
+                    t.map(|i| {
+                        let r = &mut remap[i as usize];
+                        if *r == u32::MAX {
+                            *r = used.len() as u32;
+                            used.push(i);
+                        }
+                        *r
+                    })
+                })
+                .collect();
+            for &i in &used {
+                remap[i as usize] = u32::MAX;
+            }
+            let pick = |i: &u32| mesh.positions[*i as usize];
+            PartNode {
+                name: part.name.clone(),
+                positions: used.iter().map(pick).collect(),
+                normals: mesh
+                    .normals
+                    .as_ref()
+                    .map(|n| used.iter().map(|&i| n[i as usize]).collect()),
+                uvs: mesh
+                    .uvs
+                    .as_ref()
+                    .map(|u| used.iter().map(|&i| u[i as usize]).collect()),
+                triangles,
+                base_color: part.base_color,
+            }
+        })
+        .collect()
+}
+
+/// Append an accessor; returns its index.
+fn accessor(acc: &mut Vec<Value>, view: usize, count: usize, ty: &str, ct: u32) -> usize {
+    acc.push(json!({ "bufferView": view, "componentType": ct, "count": count, "type": ty }));
+    acc.len() - 1
+}
+
+fn unit_normal(v: [f32; 3]) -> [f32; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if l > 1e-20 && l.is_finite() {
+        v.map(|c| c / l)
+    } else {
+        [0.0, 1.0, 0.0]
+    }
+}
+
+fn flat_bytes<const N: usize>(v: &[[f32; N]]) -> Vec<u8> {
+    v.iter()
+        .flat_map(|a| a.iter().flat_map(|x| x.to_le_bytes()))
+        .collect()
+}
