@@ -893,3 +893,35 @@ fn probability_experiment() {
         );
     }
 }
+
+#[test]
+#[ignore]
+fn animation_timing() {
+    let mut b = Builder::default();
+    b.grid([0.0, 10.0], [0.0, 10.0], 203, 31, |x, z| {
+        0.02 * (x * 3.0).sin() * z.cos()
+    });
+    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
+    let mesh = b.build();
+    assert_eq!(mesh.triangles.len(), 12_646);
+    let p = ModelParams {
+        resolution: 200,
+        directions: 32,
+        steps: 300,
+        snowfall: Snowfall::Constant(0.05),
+        max_stabilize_iterations: 500,
+        ..ModelParams::default()
+    };
+    let (maps, rep) = simulate(&mesh, &p, &NoControl, |_, _| {}).unwrap();
+    let ms = rep.timings.iter().find(|t| t.0 == "snowfall").unwrap().1;
+    println!(
+        "animation 12,646 tris, 200² × {} layers: {} steps in {ms:.0} ms = {:.0} steps/s (target ≥ 100); \
+         {} iterations, {} unconverged; {:?}",
+        maps.layers.len(),
+        p.steps,
+        p.steps as f64 / ms * 1e3,
+        rep.stabilize_iterations,
+        rep.unconverged_steps,
+        rep.timings
+    );
+}
