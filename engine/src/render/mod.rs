@@ -16,6 +16,7 @@
 
 pub mod camera;
 pub mod image;
+pub mod mesh;
 pub mod raster;
 pub mod sheet;
 pub mod terrain;

@@ -205,3 +205,240 @@ fn glb_vertex_colours_are_valid() {
     assert_eq!(doc["materials"][0]["name"], "snow");
     assert_valid("colours.glb", &glb);
 }
+
+// ---- render::mesh ----
+
+use phenomena_engine::render::camera::Camera;
+use phenomena_engine::render::image::linear_to_srgb8;
+use phenomena_engine::render::mesh::{
+    frame_camera, render_meshes, MeshColors, MeshInstance, MeshLighting,
+};
+use phenomena_engine::render::sun_direction;
+use phenomena_engine::NoControl;
+
+/// A horizontal square of side `2·half` centred at (cx, y, cz), CCW seen from above.
+fn quad(cx: f32, y: f32, cz: f32, half: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    (
+        vec![
+            [cx - half, y, cz - half],
+            [cx - half, y, cz + half],
+            [cx + half, y, cz + half],
+            [cx + half, y, cz - half],
+        ],
+        vec![[0, 1, 2], [0, 2, 3]],
+    )
+}
+
+/// Pixel of world point `p` in a `w × h` image.
+fn pixel_of(cam: &Camera, p: [f64; 3], w: u32, h: u32) -> (u32, u32) {
+    let [x, y] = cam.project_ndc(p, f64::from(w) / f64::from(h)).unwrap();
+    (
+        ((x + 1.0) * 0.5 * f64::from(w)) as u32,
+        ((1.0 - y) * 0.5 * f64::from(h)) as u32,
+    )
+}
+
+fn plain_light() -> MeshLighting {
+    MeshLighting {
+        sun_dir: [0.0, 1.0, 0.0],
+        sun_color: [0.7, 0.7, 0.7],
+        ambient: 0.2,
+        shadows: false,
+        fog_density: 0.0,
+        ..MeshLighting::default()
+    }
+}
+
+#[test]
+fn render_flat_quad_is_albedo_times_sun_plus_ambient() {
+    let (p, t) = quad(0.0, 0.0, 0.0, 1.0);
+    // Clockwise copy too: two-sided lighting must give the same colour.
+    let flipped: Vec<[u32; 3]> = t.iter().map(|&[a, b, c]| [a, c, b]).collect();
+    for tris in [&t, &flipped] {
+        let inst = MeshInstance {
+            positions: &p,
+            normals: None,
+            triangles: tris,
+            colors: MeshColors::Uniform([0.5, 0.3, 0.1]),
+        };
+        let cam = Camera::orbit([0.0; 3], 30.0, 60.0, 4.0, 40.0);
+        let img = render_meshes(
+            &[inst],
+            &cam,
+            &plain_light(),
+            64,
+            48,
+            &NoControl,
+            (0.0, 1.0),
+        )
+        .unwrap();
+        let px = img.pixel(32, 24);
+        let want = [0.5f32, 0.3, 0.1].map(|a| linear_to_srgb8(a * 0.9));
+        for k in 0..3 {
+            assert!(
+                (i32::from(px[k]) - i32::from(want[k])).abs() <= 1,
+                "{px:?} vs {want:?}"
+            );
+        }
+        assert_eq!(px[3], 255);
+        // The corner is sky.
+        assert_ne!(img.pixel(0, 0), px);
+    }
+}
+
+/// A unit box on a 10 m plane, sun from the east (+X) 30° up.
+fn box_scene() -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let (mut p, mut t) = quad(0.0, 0.0, 0.0, 5.0);
+    let (bp, _, _, bt) = cube();
+    let base = p.len() as u32;
+    p.extend(bp.iter().map(|q| [q[0], q[1] + 0.5, q[2]]));
+    t.extend(bt.iter().map(|tr| tr.map(|i| i + base)));
+    (p, t)
+}
+
+#[test]
+fn render_box_casts_shadow_away_from_the_sun() {
+    let (p, t) = box_scene();
+    let inst = MeshInstance {
+        positions: &p,
+        normals: None,
+        triangles: &t,
+        colors: MeshColors::Uniform([0.6; 3]),
+    };
+    let light = MeshLighting {
+        sun_dir: sun_direction(90.0, 30.0),
+        shadows: true,
+        ..plain_light()
+    };
+    let (w, h) = (160, 120);
+    let cam = Camera::orbit([0.0; 3], 0.0, 70.0, 12.0, 50.0);
+    let img = render_meshes(&[inst], &cam, &light, w, h, &NoControl, (0.0, 1.0)).unwrap();
+    let lum = |q: [f64; 3]| {
+        let (x, y) = pixel_of(&cam, q, w, h);
+        img.pixel(x, y)[0]
+    };
+    // Shadow: 1 m tall box at 30° → 1.73 m long, west of the box (x from −0.5 to −2.2).
+    let shadowed = lum([-1.3, 0.0, 0.0]);
+    let lit_east = lum([1.3, 0.0, 0.0]);
+    let lit_north = lum([0.0, 0.0, -2.5]);
+    assert!(shadowed + 40 < lit_east, "{shadowed} vs {lit_east}");
+    assert!((i32::from(lit_east) - i32::from(lit_north)).abs() <= 1);
+    // Without shadows the same spot is lit.
+    let light2 = MeshLighting {
+        shadows: false,
+        ..light
+    };
+    let img2 = render_meshes(&[inst], &cam, &light2, w, h, &NoControl, (0.0, 1.0)).unwrap();
+    let (x, y) = pixel_of(&cam, [-1.3, 0.0, 0.0], w, h);
+    assert_eq!(img2.pixel(x, y)[0], lit_east);
+}
+
+#[test]
+fn render_fog_pulls_far_surfaces_to_the_fog_colour() {
+    let (mut p, mut t) = quad(0.0, 0.0, -1.0, 0.5);
+    let (p2, t2) = quad(0.0, 0.0, -30.0, 5.0);
+    t.extend(t2.iter().map(|tr| tr.map(|i| i + 4)));
+    p.extend(p2);
+    let inst = MeshInstance {
+        positions: &p,
+        normals: None,
+        triangles: &t,
+        colors: MeshColors::Uniform([0.2, 0.2, 0.2]),
+    };
+    let light = MeshLighting {
+        fog_density: 0.05,
+        fog_color: [0.9, 0.9, 0.9],
+        ..plain_light()
+    };
+    let cam = Camera {
+        eye: [0.0, 1.5, 2.0],
+        target: [0.0, 0.0, -10.0],
+        up: [0.0, 1.0, 0.0],
+        fov_deg: 60.0,
+    };
+    let (w, h) = (120, 90);
+    let img = render_meshes(&[inst], &cam, &light, w, h, &NoControl, (0.0, 1.0)).unwrap();
+    let at = |q: [f64; 3]| {
+        let (x, y) = pixel_of(&cam, q, w, h);
+        img.pixel(x, y)[0]
+    };
+    let fog = linear_to_srgb8(0.9);
+    let (near, far) = (at([0.0, 0.0, -1.0]), at([0.0, 0.0, -30.0]));
+    assert!(fog - far < fog - near, "near {near} far {far} fog {fog}");
+    // The near one is close to the unfogged value: 0.2·0.9 at e^(−0.05·~3.2).
+    let d = (1.5f64 * 1.5 + 3.0 * 3.0).sqrt();
+    let f = (-0.05 * d).exp() as f32;
+    let want = linear_to_srgb8(0.18 * f + 0.9 * (1.0 - f));
+    assert!(
+        (i32::from(near) - i32::from(want)).abs() <= 2,
+        "{near} vs {want}"
+    );
+}
+
+#[test]
+fn render_is_the_same_on_one_and_two_threads() {
+    let (p, t) = box_scene();
+    let colors: Vec<[f32; 3]> = p
+        .iter()
+        .map(|q| [0.3 + 0.05 * q[0], 0.5, 0.3 + 0.05 * q[2]])
+        .collect();
+    let inst = MeshInstance {
+        positions: &p,
+        normals: None,
+        triangles: &t,
+        colors: MeshColors::PerVertex(&colors),
+    };
+    let light = MeshLighting {
+        fog_density: 0.01,
+        ..MeshLighting::default()
+    };
+    let cam = frame_camera(([-5.0, 0.0, -5.0], [5.0, 1.0, 5.0]), 30.0, 35.0, 40.0, 1.5);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| render_meshes(&[inst], &cam, &light, 150, 100, &NoControl, (0.0, 1.0)))
+            .unwrap()
+    };
+    assert_eq!(run(1).data, run(2).data);
+}
+
+#[test]
+fn render_fzk_haus() {
+    use phenomena_engine::formats::mesh::{decode_mesh, MeshOptions};
+    let path = format!(
+        "{}/../../shared/data/mesh/fzk_haus.glb",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let Ok(bytes) = std::fs::read(&path) else {
+        eprintln!("skipped: {path} missing");
+        return;
+    };
+    let mesh = decode_mesh(&bytes, Some("fzk_haus.glb"), &MeshOptions::default()).unwrap();
+    let inst = MeshInstance {
+        positions: &mesh.positions,
+        normals: mesh.normals.as_deref(),
+        triangles: &mesh.triangles,
+        colors: MeshColors::PerPart(&mesh.parts),
+    };
+    let light = MeshLighting {
+        fog_density: 0.005,
+        ..MeshLighting::default()
+    };
+    let (w, h) = (640, 480);
+    let cam = frame_camera(mesh.bounds().unwrap(), 200.0, 30.0, 40.0, 640.0 / 480.0);
+    let t0 = std::time::Instant::now();
+    let img = render_meshes(&[inst], &cam, &light, w, h, &NoControl, (0.0, 1.0)).unwrap();
+    eprintln!(
+        "fzk_haus: {} triangles, {:?}",
+        mesh.triangles.len(),
+        t0.elapsed()
+    );
+    let out = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/mesh_render");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("fzk_haus.png"), encode_rgba(&img)).unwrap();
+    // The house covers the middle of the frame.
+    let sky = img.pixel(0, 0);
+    assert_ne!(img.pixel(w / 2, h / 2), sky);
+}
