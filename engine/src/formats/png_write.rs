@@ -49,6 +49,50 @@ fn encode(width: u32, height: u32, color: png::ColorType, data: &[u8]) -> Vec<u8
     out
 }
 
+/// Encode `frames` as an animated PNG (APNG) that loops forever, each frame shown `delay_ms`
+/// milliseconds; the first frame is also the still image viewers without APNG support show.
+/// Full frames (no sub-rectangles), blend op `Source`, dispose op `None`; same colour settings
+/// and deflate level as [`encode_rgba`]. Allocates the output (~1–3 bytes per pixel per frame).
+/// Panics when `frames` is empty or the frames differ in size (caller bugs).
+pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
+    assert!(!frames.is_empty(), "an animated PNG needs a frame");
+    let (width, height) = (frames[0].width, frames[0].height);
+    for f in frames {
+        assert!(
+            f.width == width
+                && f.height == height
+                && f.data.len() == width as usize * height as usize * 4,
+            "APNG frames must share one size"
+        );
+    }
+    let mut out = Vec::with_capacity(frames.len() * (frames[0].data.len() / 2 + 64) + 1024);
+    {
+        let mut enc = png::Encoder::new(&mut out, width, height);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_compression(png::Compression::Fast);
+        enc.set_filter(png::FilterType::Sub);
+        enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        // These only fail for zero frames or a zero denominator, excluded above; writing into a
+        // Vec only fails on inconsistent sizes, also checked above.
+        #[allow(clippy::expect_used)]
+        {
+            enc.set_animated(frames.len() as u32, 0)
+                .expect("at least one frame");
+            enc.set_frame_delay(delay_ms, 1000)
+                .expect("non-zero denominator");
+            let mut writer = enc.write_header().expect("png header into a Vec");
+            for f in frames {
+                writer
+                    .write_image_data(&f.data)
+                    .expect("png frame into a Vec");
+            }
+            writer.finish().expect("png end into a Vec");
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

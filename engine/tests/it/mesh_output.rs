@@ -442,3 +442,32 @@ fn render_fzk_haus() {
     let sky = img.pixel(0, 0);
     assert_ne!(img.pixel(w / 2, h / 2), sky);
 }
+
+// ---- formats::png_write::encode_apng ----
+
+#[test]
+fn apng_decodes_as_animated_with_every_frame() {
+    use phenomena_engine::formats::png_write::encode_apng;
+    let frames: Vec<RgbaImage> = (0..5u8)
+        .map(|k| {
+            let mut f = RgbaImage::new_filled(7, 3, [k * 40, 10, 200 - k * 30, 255]);
+            f.set_pixel(k as u32, 1, [255, 255, 255, 128]);
+            f
+        })
+        .collect();
+    let bytes = encode_apng(&frames, 250);
+    let mut r = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let actl = r.info().animation_control.unwrap();
+    assert_eq!((actl.num_frames, actl.num_plays), (5, 0));
+    let mut buf = vec![0; r.output_buffer_size()];
+    for f in &frames {
+        let info = r.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (7, 3));
+        let fc = r.info().frame_control.unwrap();
+        assert_eq!((fc.delay_num, fc.delay_den), (250, 1000));
+        assert_eq!(&buf[..info.buffer_size()], &f.data[..]);
+    }
+    assert!(r.next_frame(&mut buf).is_err());
+}
