@@ -180,12 +180,7 @@ async fn cancel_running_and_queued_jobs() {
         .await
         .unwrap();
     // Wait until `a` runs.
-    for _ in 0..500 {
-        if s.job(&id_of(&a)).await["status"] == "running" {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    s.wait_running(&id_of(&a)).await;
     // The queued one is canceled at once.
     let resp = s
         .client
@@ -383,12 +378,7 @@ async fn a_full_queue_answers_429_with_retry_after() {
         .json()
         .await
         .unwrap();
-    for _ in 0..500 {
-        if s.job(&id_of(&a)).await["status"] == "running" {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    s.wait_running(&id_of(&a)).await;
     let b = s.sleepy(json!({"stages": 100, "ms": 20}), b"2").await;
     assert_eq!(b.status().as_u16(), 202);
     let resp = s.sleepy(json!({"stages": 100, "ms": 20}), b"3").await;
@@ -608,12 +598,7 @@ async fn graceful_shutdown_requeues_and_restart_finishes() {
         .json()
         .await
         .unwrap();
-    for _ in 0..500 {
-        if s.job(&id_of(&j)).await["status"] == "running" {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    s.wait_running(&id_of(&j)).await;
     let dir = s.stop().await;
     let s = Server::start_in(dir, |_| {}).await;
     let done = s.wait_done(&id_of(&j)).await;

@@ -242,6 +242,17 @@ impl Server {
             .unwrap()
     }
 
+    /// Polls until the job is running (5 s at most).
+    pub async fn wait_running(&self, id: &str) {
+        for _ in 0..500 {
+            if self.job(id).await["status"] == "running" {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("job {id} did not start");
+    }
+
     /// Polls until the job is finished (30 s at most).
     pub async fn wait_done(&self, id: &str) -> Value {
         for _ in 0..3000 {

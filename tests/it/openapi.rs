@@ -73,6 +73,15 @@ fn check(spec: &Value, method: &str, path: &str, status: u16, ctype: &str, body:
     );
 }
 
+/// Reads a JSON response and validates it against the spec; returns the body.
+async fn checked(spec: &Value, method: &str, path: &str, r: reqwest::Response) -> Value {
+    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
+    let status = r.status().as_u16();
+    let body: Value = r.json().await.unwrap();
+    check(spec, method, path, status, &ct, &body);
+    body
+}
+
 #[tokio::test]
 async fn spec_routes_equal_served_routes() {
     let spec = spec();
@@ -111,27 +120,10 @@ async fn responses_match_the_spec() {
     let spec = spec();
     let s = Server::start(|_| {}).await;
     let dem = std::fs::read(data("dem/maunga_whau_volcano.asc")).unwrap();
+    let get = |path: &str| s.client.get(s.url(path)).send();
 
-    let r = s.client.get(s.url("/healthz")).send().await.unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "get",
-        "/healthz",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
-    let r = s.client.get(s.url("/readyz")).send().await.unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "get",
-        "/readyz",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
+    checked(&spec, "get", "/healthz", get("/healthz").await.unwrap()).await;
+    checked(&spec, "get", "/readyz", get("/readyz").await.unwrap()).await;
 
     // Assets.
     let r = s
@@ -141,40 +133,13 @@ async fn responses_match_the_spec() {
         .send()
         .await
         .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    let asset: Value = r.json().await.unwrap();
-    check(&spec, "post", "/v1/assets", status, &ct, &asset);
-    let r = s
-        .client
-        .get(s.url(asset["url"].as_str().unwrap()))
-        .send()
+    let asset = checked(&spec, "post", "/v1/assets", r).await;
+    let r = get(asset["url"].as_str().unwrap()).await.unwrap();
+    checked(&spec, "get", "/v1/assets/{id}", r).await;
+    let r = get(&format!("/v1/assets/{}", "a".repeat(64)))
         .await
         .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "get",
-        "/v1/assets/{id}",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/assets/{}", "a".repeat(64))))
-        .send()
-        .await
-        .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "get",
-        "/v1/assets/{id}",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
+    checked(&spec, "get", "/v1/assets/{id}", r).await;
 
     // A real snow-terrain job, small.
     let params = json!({"width": 64, "height": 48, "mesh_max_vertices": 1000});
@@ -187,10 +152,7 @@ async fn responses_match_the_spec() {
             "volcano.asc",
         )
         .await;
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    let job: Value = r.json().await.unwrap();
-    check(&spec, "post", "/v1/snow-terrain", status, &ct, &job);
+    let job = checked(&spec, "post", "/v1/snow-terrain", r).await;
     let id = job["id"].as_str().unwrap().to_string();
     let done = s.wait_done(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
@@ -209,55 +171,31 @@ async fn responses_match_the_spec() {
         .send()
         .await
         .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    let reused: Value = r.json().await.unwrap();
+    let reused = checked(&spec, "post", "/v1/snow-terrain", r).await;
     assert_eq!(
         reused["id"],
         json!(id),
         "the JSON form reuses the multipart job's result"
     );
-    check(&spec, "post", "/v1/snow-terrain", status, &ct, &reused);
 
-    let r = s
-        .client
-        .get(s.url("/v1/jobs?limit=5"))
-        .send()
-        .await
-        .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
+    checked(
         &spec,
         "get",
         "/v1/jobs",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
+        get("/v1/jobs?limit=5").await.unwrap(),
+    )
+    .await;
     let r = s
         .client
         .delete(s.url(&format!("/v1/jobs/{id}")))
         .send()
         .await
         .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "delete",
-        "/v1/jobs/{id}",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
+    checked(&spec, "delete", "/v1/jobs/{id}", r).await;
 
     // Every output is downloadable with a media type the spec lists.
     for o in done["outputs"].as_array().unwrap() {
-        let r = s
-            .client
-            .get(s.url(o["url"].as_str().unwrap()))
-            .send()
-            .await
-            .unwrap();
+        let r = get(o["url"].as_str().unwrap()).await.unwrap();
         assert_eq!(r.status().as_u16(), 200);
         let ct = r.headers()["content-type"].to_str().unwrap().to_string();
         assert_eq!(ct, o["media_type"].as_str().unwrap());
@@ -269,7 +207,7 @@ async fn responses_match_the_spec() {
         );
     }
 
-    // Errors.
+    // Errors: out-of-range parameter, corrupt DEM, unsupported format, bad query, unknown job.
     let r = s
         .submit(
             "snow-terrain",
@@ -279,11 +217,9 @@ async fn responses_match_the_spec() {
             "v.asc",
         )
         .await;
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    let p: Value = r.json().await.unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let p = checked(&spec, "post", "/v1/snow-terrain", r).await;
     assert_eq!(p["field"], "probe_radius");
-    check(&spec, "post", "/v1/snow-terrain", status, &ct, &p);
     let r = s
         .submit(
             "snow-terrain",
@@ -293,17 +229,8 @@ async fn responses_match_the_spec() {
             "v.asc",
         )
         .await;
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    assert_eq!(status, 422);
-    check(
-        &spec,
-        "post",
-        "/v1/snow-terrain",
-        status,
-        &ct,
-        &r.json().await.unwrap(),
-    );
+    assert_eq!(r.status().as_u16(), 422);
+    checked(&spec, "post", "/v1/snow-terrain", r).await;
     let r = s
         .submit(
             "snow-terrain",
@@ -313,47 +240,17 @@ async fn responses_match_the_spec() {
             "v.gif",
         )
         .await;
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    let status = r.status().as_u16();
-    assert_eq!(status, 415);
-    check(
-        &spec,
-        "post",
-        "/v1/snow-terrain",
-        status,
-        &ct,
-        &r.json().await.unwrap(),
-    );
-    let r = s
-        .client
-        .get(s.url("/v1/jobs?limit=1000"))
-        .send()
-        .await
-        .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
+    assert_eq!(r.status().as_u16(), 415);
+    checked(&spec, "post", "/v1/snow-terrain", r).await;
+    checked(
         &spec,
         "get",
         "/v1/jobs",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{}", "1".repeat(32))))
-        .send()
-        .await
-        .unwrap();
-    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
-    check(
-        &spec,
-        "get",
-        "/v1/jobs/{id}",
-        r.status().as_u16(),
-        &ct,
-        &r.json().await.unwrap(),
-    );
+        get("/v1/jobs?limit=1000").await.unwrap(),
+    )
+    .await;
+    let r = get(&format!("/v1/jobs/{}", "1".repeat(32))).await.unwrap();
+    checked(&spec, "get", "/v1/jobs/{id}", r).await;
 }
 
 #[test]
