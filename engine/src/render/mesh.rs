@@ -21,8 +21,8 @@
 //! **Anti-aliasing and determinism** are [`render_adaptive`]'s: bands of rows, fixed sample
 //! pattern, identical bytes for any thread count (the shadow map is a max per texel).
 //!
-//! **Cost.** Setup allocates 24 B per vertex and 76 B per triangle (combined mesh, per-triangle
-//! normals and albedo), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
+//! **Cost.** Setup allocates 24 B per vertex and 84 B per triangle (combined mesh, per-triangle
+//! normals and albedo; 72 B more per triangle while the shadow map is built), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
 //! Shadow pass: O(bands × triangles) bounding-box tests plus the covered texels.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -164,10 +164,8 @@ fn merge(instances: &[MeshInstance]) -> Scene {
         for p in inst.positions {
             let p = p.map(f64::from);
             if p.iter().all(|v| v.is_finite()) {
-                for k in 0..3 {
-                    s.lo[k] = s.lo[k].min(p[k]);
-                    s.hi[k] = s.hi[k].max(p[k]);
-                }
+                s.lo = [0, 1, 2].map(|k| s.lo[k].min(p[k]));
+                s.hi = [0, 1, 2].map(|k| s.hi[k].max(p[k]));
             }
             s.positions.push(p);
         }
@@ -411,8 +409,8 @@ pub fn render_meshes(
     // Near plane just inside the scene's bounding box as seen from the eye.
     let eye = camera.eye;
     let (mut near2, mut diag2) = (0.0, 0.0);
-    for k in 0..3 {
-        let d = (scene.lo[k] - eye[k]).max(eye[k] - scene.hi[k]).max(0.0);
+    for (k, &e) in eye.iter().enumerate() {
+        let d = (scene.lo[k] - e).max(e - scene.hi[k]).max(0.0);
         near2 += d * d;
         let e = (scene.hi[k] - scene.lo[k]).max(0.0);
         diag2 += e * e;

@@ -33,8 +33,11 @@ fn assert_valid(name: &str, glb: &[u8]) {
     );
 }
 
+/// Positions, normals, UVs and triangles.
+type Cube = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>);
+
 /// A unit cube with per-face vertices: 24 positions, normals, UVs, 12 triangles (CCW outside).
-fn cube() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>) {
+fn cube() -> Cube {
     let (mut p, mut n, mut uv, mut t) = (vec![], vec![], vec![], vec![]);
     for axis in 0..3 {
         for s in [-1.0f32, 1.0] {
