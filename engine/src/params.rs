@@ -83,9 +83,17 @@ fn finite3(field: &str, v: [f64; 3]) -> Result<[f64; 3], ParamError> {
     }
 }
 
-/// Validates the camera: orbit fields or eye/target, not a mix.
-pub fn camera_spec(c: WireCamera) -> Result<CameraSpec, ParamError> {
-    let fov_deg = range("camera.fov_deg", c.fov_deg, 40.0, 1.0, 150.0)?;
+/// A pipeline's default orbit (each pipeline picks the view that shows its phenomenon best).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrbitDefaults {
+    pub azimuth_deg: f64,
+    pub elevation_deg: f64,
+    pub fov_deg: f64,
+}
+
+/// Validates the camera: orbit fields or eye/target, not a mix; absent orbit fields take `d`.
+pub fn camera_spec(c: WireCamera, d: OrbitDefaults) -> Result<CameraSpec, ParamError> {
+    let fov_deg = range("camera.fov_deg", c.fov_deg, d.fov_deg, 1.0, 150.0)?;
     match (c.eye, c.target) {
         (Some(eye), Some(target)) => {
             if c.azimuth_deg.is_some() || c.elevation_deg.is_some() || c.distance.is_some() {
@@ -111,8 +119,20 @@ pub fn camera_spec(c: WireCamera) -> Result<CameraSpec, ParamError> {
         (Some(_), None) => Err(ParamError::new("camera.target", "required with camera.eye")),
         (None, Some(_)) => Err(ParamError::new("camera.eye", "required with camera.target")),
         (None, None) => Ok(CameraSpec::Orbit {
-            azimuth_deg: range("camera.azimuth_deg", c.azimuth_deg, 200.0, -360.0, 360.0)?,
-            elevation_deg: range("camera.elevation_deg", c.elevation_deg, 30.0, -89.0, 89.0)?,
+            azimuth_deg: range(
+                "camera.azimuth_deg",
+                c.azimuth_deg,
+                d.azimuth_deg,
+                -360.0,
+                360.0,
+            )?,
+            elevation_deg: range(
+                "camera.elevation_deg",
+                c.elevation_deg,
+                d.elevation_deg,
+                -89.0,
+                89.0,
+            )?,
             distance: match c.distance {
                 Some(d) => Some(range("camera.distance", Some(d), 1.0, 1e-3, 1e9)?),
                 None => None,

@@ -172,7 +172,7 @@ pub fn terrain_glb(
         json!({
             "asset": { "version": "2.0", "generator": "phenomena" },
             "scene": 0,
-            "scenes": [{ "nodes": [] }]
+            "scenes": [{}]
         })
     } else {
         push_view(&mut bin, &f32_bytes(&pos), ARRAY_BUFFER);

@@ -66,7 +66,10 @@ impl Camera {
         if z <= 1e-9 {
             return None;
         }
-        Some([dot(v, r) / (z * tan_half * aspect), dot(v, u) / (z * tan_half)])
+        Some([
+            dot(v, r) / (z * tan_half * aspect),
+            dot(v, u) / (z * tan_half),
+        ])
     }
 
     /// An orbit camera (see [`Camera::orbit`]) at the smallest distance from which every point of
@@ -112,6 +115,35 @@ impl Camera {
             }
         }
         Self::orbit(center, azimuth_deg, elevation_deg, hi, fov_deg)
+    }
+
+    /// An orbit around the centre of the box `lo..hi` that frames its 8 corners within 92 % of
+    /// an image of this `aspect` (see [`Camera::orbit_framing`]).
+    pub fn frame_box(
+        lo: [f64; 3],
+        hi: [f64; 3],
+        azimuth_deg: f64,
+        elevation_deg: f64,
+        fov_deg: f64,
+        aspect: f64,
+    ) -> Self {
+        let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+        let corners: [[f64; 3]; 8] = std::array::from_fn(|i| {
+            [
+                if i & 1 == 0 { lo[0] } else { hi[0] },
+                if i & 2 == 0 { lo[1] } else { hi[1] },
+                if i & 4 == 0 { lo[2] } else { hi[2] },
+            ]
+        });
+        Self::orbit_framing(
+            center,
+            azimuth_deg,
+            elevation_deg,
+            fov_deg,
+            aspect,
+            &corners,
+            0.92,
+        )
     }
 
     /// Ray generator for an `width × height` image. Cheap; no allocation.
@@ -211,8 +243,14 @@ mod tests {
             .flat_map(|&x| [-1.0f64, 1.0].map(move |z| [x * 1000.0, 0.0, z * 800.0]))
             .collect();
         let cam = Camera::orbit_framing([0.0; 3], 200.0, 30.0, 40.0, 1.5, &pts, 0.9);
-        let ndc: Vec<[f64; 2]> = pts.iter().map(|p| cam.project_ndc(*p, 1.5).unwrap()).collect();
-        let extent = ndc.iter().flat_map(|p| [p[0].abs(), p[1].abs()]).fold(0.0, f64::max);
+        let ndc: Vec<[f64; 2]> = pts
+            .iter()
+            .map(|p| cam.project_ndc(*p, 1.5).unwrap())
+            .collect();
+        let extent = ndc
+            .iter()
+            .flat_map(|p| [p[0].abs(), p[1].abs()])
+            .fold(0.0, f64::max);
         assert!(extent <= 0.9 + 1e-9 && extent > 0.899, "{extent}");
         let sphere = Camera::auto_distance(1280.6, 40.0);
         let d = (0..3).map(|i| cam.eye[i] * cam.eye[i]).sum::<f64>().sqrt();

@@ -113,25 +113,13 @@ pub fn frame_camera(
     fov_deg: f64,
     aspect: f64,
 ) -> Camera {
-    let (lo, hi) = (bounds.0.map(f64::from), bounds.1.map(f64::from));
-    let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-    let corners: Vec<[f64; 3]> = (0..8)
-        .map(|i| {
-            [
-                if i & 1 == 0 { lo[0] } else { hi[0] },
-                if i & 2 == 0 { lo[1] } else { hi[1] },
-                if i & 4 == 0 { lo[2] } else { hi[2] },
-            ]
-        })
-        .collect();
-    Camera::orbit_framing(
-        center,
+    Camera::frame_box(
+        bounds.0.map(f64::from),
+        bounds.1.map(f64::from),
         azimuth_deg,
         elevation_deg,
         fov_deg,
         aspect,
-        &corners,
-        0.92,
     )
 }
 

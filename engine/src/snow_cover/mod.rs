@@ -8,6 +8,7 @@
 //! deterministic for a seed and bit-identical for any number of rayon threads.
 
 pub mod maps;
+pub mod params;
 pub mod probability;
 pub mod region;
 pub mod settle;

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::descriptor::DescriptorParams;
-use crate::params::{camera_spec, parse_hex_color, range, CameraSpec, WireCamera};
+use crate::params::{camera_spec, parse_hex_color, range, CameraSpec, OrbitDefaults, WireCamera};
 use crate::pipeline::Limits;
 use crate::ParamError;
 
@@ -170,7 +170,14 @@ impl Params {
                 ),
             ));
         }
-        let camera = camera_spec(w.camera.clone().unwrap_or_default())?;
+        let camera = camera_spec(
+            w.camera.clone().unwrap_or_default(),
+            OrbitDefaults {
+                azimuth_deg: 200.0,
+                elevation_deg: 30.0,
+                fov_deg: 40.0,
+            },
+        )?;
         let descriptor = DescriptorParams {
             smooth_radius: range("smooth_radius", w.smooth_radius, d.smooth_radius, 1, 16)?,
             smooth_iterations: range(

@@ -38,24 +38,7 @@ fn camera_for(spec: &CameraSpec, scene: &TerrainScene, aspect: f64) -> Camera {
             match (distance, scene.bounds()) {
                 (Some(d), _) => Camera::orbit(center, azimuth_deg, elevation_deg, d, fov_deg),
                 (None, Some((lo, hi))) => {
-                    let corners: Vec<[f64; 3]> = (0..8)
-                        .map(|i| {
-                            [
-                                if i & 1 == 0 { lo[0] } else { hi[0] },
-                                if i & 2 == 0 { lo[1] } else { hi[1] },
-                                if i & 4 == 0 { lo[2] } else { hi[2] },
-                            ]
-                        })
-                        .collect();
-                    Camera::orbit_framing(
-                        center,
-                        azimuth_deg,
-                        elevation_deg,
-                        fov_deg,
-                        aspect,
-                        &corners,
-                        0.92,
-                    )
+                    Camera::frame_box(lo, hi, azimuth_deg, elevation_deg, fov_deg, aspect)
                 }
                 (None, None) => Camera::orbit(
                     center,

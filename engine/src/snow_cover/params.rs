@@ -1,0 +1,315 @@
+//! Parameters of the `snow-cover` pipeline: the wire form (JSON, unknown names rejected) and the
+//! validated form. Names follow SPEC §2; every field says its unit, range and default.
+
+use serde::{Deserialize, Serialize};
+
+use super::probability::Wind;
+use super::snowfall::{ModelParams, Snowfall};
+use crate::params::{camera_spec, range, CameraSpec, OrbitDefaults, WireCamera};
+use crate::pipeline::Limits;
+use crate::ParamError;
+
+/// Up axis of the input for formats without one fixed by their spec (OBJ, STL, PLY).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxisParam {
+    Y,
+    Z,
+}
+
+/// Wire form of `wind`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WireWind {
+    pub azimuth_deg: f32,
+    pub tilt_deg: f32,
+}
+
+/// Wire form of `snowfall`: a constant rate (m/h) or a schedule `[[hour, rate], …]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum WireSnowfall {
+    Rate(f64),
+    Schedule(Vec<[f64; 2]>),
+}
+
+/// Wire parameters (all optional; unknown names are rejected).
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WireParams {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub camera: Option<WireCamera>,
+    pub seed: Option<u64>,
+    pub up_axis: Option<UpAxisParam>,
+    pub resolution: Option<usize>,
+    pub directions: Option<usize>,
+    pub spread_deg: Option<f32>,
+    pub wind: Option<WireWind>,
+    pub weight_directions: Option<bool>,
+    pub snowfall: Option<WireSnowfall>,
+    pub duration_h: Option<f64>,
+    pub steps: Option<usize>,
+    pub reproject_every: Option<usize>,
+    pub repose_angle_deg: Option<f32>,
+    pub max_stabilize_iterations: Option<usize>,
+    pub sparse_depth: Option<f32>,
+    pub max_edge_length: Option<f32>,
+    pub frames: Option<usize>,
+    pub sun_azimuth_deg: Option<f64>,
+    pub sun_elevation_deg: Option<f64>,
+    pub fog: Option<f32>,
+    pub shadows: Option<bool>,
+}
+
+/// Validated parameters of one `snow-cover` run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Params {
+    /// Output image width, pixels, 16–8192. Default 960.
+    pub width: u32,
+    /// Output image height, pixels, 16–8192. Default 640.
+    pub height: u32,
+    pub camera: CameraSpec,
+    /// Seed of the snowfall directions (and the flake texture). Default 0.
+    pub seed: u64,
+    /// Up axis for OBJ/STL/PLY; glTF is Y-up by its spec unless this is given. Default: Z for
+    /// STL/PLY, Y for OBJ and glTF.
+    pub up_axis: Option<UpAxisParam>,
+    /// Snow-map cells across the scene's longer horizontal side, 16–4096. Default 512 (paper
+    /// 100–200).
+    pub resolution: usize,
+    /// Snowfall directions K, 1–256. Default 32 (paper 5).
+    pub directions: usize,
+    /// Angular standard deviation of the directions, degrees, 0–45. Default 10.
+    pub spread_deg: f32,
+    /// Wind: compass azimuth the snow comes from and the tilt from vertical (0–85°). Default none.
+    pub wind: Option<WindParam>,
+    /// Weight directions by their angle (workshop paper). Default false.
+    pub weight_directions: bool,
+    /// Metres of fresh snow per hour on open ground, or a schedule `[[hour, rate], …]`
+    /// (piecewise constant). Default 0.02.
+    pub snowfall: SnowfallParam,
+    /// Hours of snowfall, 0–1000. Default 12.
+    pub duration_h: f64,
+    /// Accumulation increments, 1–10000. Default 48.
+    pub steps: usize,
+    /// Recompute the probability on the snow surface every n steps; 0 = never (the paper).
+    /// Default 0.
+    pub reproject_every: usize,
+    /// Angle of repose, degrees, 10–89 (paper 45–60). Default 50.
+    pub repose_angle_deg: f32,
+    /// Stabilization iterations per step at most, 1–100000. Default 500.
+    pub max_stabilize_iterations: usize,
+    /// Snow thinner than this (metres) is drawn as sparse flakes, 0–1. Default 0.01.
+    pub sparse_depth: f32,
+    /// Subdivide the displaced mesh's edges longer than this (metres); null = no subdivision.
+    pub max_edge_length: Option<f32>,
+    /// Frames of `timelapse.png` (1 = no time-lapse), 1–120. Default 1.
+    pub frames: usize,
+    /// Sun for shading, compass azimuth degrees. Default 150.
+    pub sun_azimuth_deg: f64,
+    /// Sun elevation, degrees, 1–90. Default 40.
+    pub sun_elevation_deg: f64,
+    /// Exponential fog density per scene diagonal, 0–10 (the paper renders with fog). Default 0.6.
+    pub fog: f32,
+    /// Cast shadows in the render. Default true.
+    pub shadows: bool,
+}
+
+/// Validated wind.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct WindParam {
+    pub azimuth_deg: f32,
+    pub tilt_deg: f32,
+}
+
+/// Validated snowfall.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum SnowfallParam {
+    Rate(f64),
+    Schedule(Vec<[f64; 2]>),
+}
+
+impl Params {
+    /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
+    /// the field.
+    pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
+        let w: WireParams = crate::pipeline::deserialize_params(v)?;
+        let width = range("width", w.width, 960, 16, 8192)?;
+        let height = range("height", w.height, 640, 16, 8192)?;
+        if u64::from(width) * u64::from(height) > limits.max_output_pixels {
+            return Err(ParamError::new(
+                "width",
+                format!(
+                    "{width}×{height} exceeds the output limit of {} pixels",
+                    limits.max_output_pixels
+                ),
+            ));
+        }
+        let camera = camera_spec(
+            w.camera.clone().unwrap_or_default(),
+            OrbitDefaults {
+                azimuth_deg: 210.0,
+                elevation_deg: 35.0,
+                fov_deg: 40.0,
+            },
+        )?;
+        let wind = match &w.wind {
+            Some(wd) => Some(WindParam {
+                azimuth_deg: range("wind.azimuth_deg", Some(wd.azimuth_deg), 0.0, 0.0, 360.0)?,
+                tilt_deg: range("wind.tilt_deg", Some(wd.tilt_deg), 0.0, 0.0, 85.0)?,
+            }),
+            None => None,
+        };
+        let snowfall = match &w.snowfall {
+            None => SnowfallParam::Rate(0.02),
+            Some(WireSnowfall::Rate(r)) => {
+                SnowfallParam::Rate(range("snowfall", Some(*r), 0.0, 0.0, 10.0)?)
+            }
+            Some(WireSnowfall::Schedule(s)) => {
+                if s.is_empty() || s.len() > 1000 {
+                    return Err(ParamError::new(
+                        "snowfall",
+                        "give 1 to 1000 [hour, rate] pairs",
+                    ));
+                }
+                let mut last = f64::NEG_INFINITY;
+                for (i, [hour, rate]) in s.iter().enumerate() {
+                    range(&format!("snowfall[{i}][0]"), Some(*hour), 0.0, 0.0, 1000.0)?;
+                    range(&format!("snowfall[{i}][1]"), Some(*rate), 0.0, 0.0, 10.0)?;
+                    if *hour <= last {
+                        return Err(ParamError::new(
+                            format!("snowfall[{i}][0]"),
+                            "hours must increase",
+                        ));
+                    }
+                    last = *hour;
+                }
+                SnowfallParam::Schedule(s.clone())
+            }
+        };
+        let max_edge_length = match w.max_edge_length {
+            Some(e) => Some(range("max_edge_length", Some(e), 1.0, 1e-4, 1e4)?),
+            None => None,
+        };
+        Ok(Params {
+            width,
+            height,
+            camera,
+            seed: w.seed.unwrap_or(0),
+            up_axis: w.up_axis,
+            resolution: range("resolution", w.resolution, 512, 16, 4096)?,
+            directions: range("directions", w.directions, 32, 1, 256)?,
+            spread_deg: range("spread_deg", w.spread_deg, 10.0, 0.0, 45.0)?,
+            wind,
+            weight_directions: w.weight_directions.unwrap_or(false),
+            snowfall,
+            duration_h: range("duration_h", w.duration_h, 12.0, 0.0, 1000.0)?,
+            steps: range("steps", w.steps, 48, 1, 10_000)?,
+            reproject_every: range("reproject_every", w.reproject_every, 0, 0, 10_000)?,
+            repose_angle_deg: range("repose_angle_deg", w.repose_angle_deg, 50.0, 10.0, 89.0)?,
+            max_stabilize_iterations: range(
+                "max_stabilize_iterations",
+                w.max_stabilize_iterations,
+                500,
+                1,
+                100_000,
+            )?,
+            sparse_depth: range("sparse_depth", w.sparse_depth, 0.01, 0.0, 1.0)?,
+            max_edge_length,
+            frames: range("frames", w.frames, 1, 1, 120)?,
+            sun_azimuth_deg: range("sun_azimuth_deg", w.sun_azimuth_deg, 150.0, 0.0, 360.0)?,
+            sun_elevation_deg: range("sun_elevation_deg", w.sun_elevation_deg, 40.0, 1.0, 90.0)?,
+            fog: range("fog", w.fog, 0.6, 0.0, 10.0)?,
+            shadows: w.shadows.unwrap_or(true),
+        })
+    }
+
+    /// The model's parameters (SPEC §2 steps 1–5).
+    pub fn model(&self) -> ModelParams {
+        ModelParams {
+            resolution: self.resolution,
+            directions: self.directions,
+            spread_deg: self.spread_deg,
+            wind: self.wind.map(|w| Wind {
+                azimuth_deg: w.azimuth_deg,
+                tilt_deg: w.tilt_deg,
+            }),
+            angle_weighting: self.weight_directions,
+            seed: self.seed,
+            snowfall: match &self.snowfall {
+                SnowfallParam::Rate(r) => Snowfall::Constant(*r),
+                SnowfallParam::Schedule(s) => {
+                    Snowfall::Schedule(s.iter().map(|[h, r]| (*h, *r)).collect())
+                }
+            },
+            duration_h: self.duration_h,
+            steps: self.steps,
+            reproject_every: self.reproject_every,
+            repose_angle_deg: self.repose_angle_deg,
+            max_stabilize_iterations: self.max_stabilize_iterations,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn defaults_match_the_model_defaults() {
+        let p = Params::from_json(&json!({}), &Limits::default()).unwrap();
+        let m = p.model();
+        let d = ModelParams::default();
+        assert_eq!(
+            (
+                m.resolution,
+                m.directions,
+                m.steps,
+                m.max_stabilize_iterations
+            ),
+            (
+                d.resolution,
+                d.directions,
+                d.steps,
+                d.max_stabilize_iterations
+            )
+        );
+        assert_eq!(
+            (m.spread_deg, m.repose_angle_deg),
+            (d.spread_deg, d.repose_angle_deg)
+        );
+        assert_eq!(m.duration_h, d.duration_h);
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let l = Limits::default();
+        for (v, field) in [
+            (
+                json!({"wind": {"azimuth_deg": 10, "tilt_deg": 90}}),
+                "wind.tilt_deg",
+            ),
+            (json!({"wind": {"azimuth_deg": 10}}), "wind"),
+            (
+                json!({"snowfall": [[0, 0.01], [0, 0.02]]}),
+                "snowfall[1][0]",
+            ),
+            (json!({"snowfall": -1}), "snowfall"),
+            (json!({"repose_angle_deg": 5}), "repose_angle_deg"),
+            (json!({"up_axis": "x"}), "up_axis"),
+            (json!({"frames": 0}), "frames"),
+            (json!({"directionz": 3}), "directionz"),
+        ] {
+            let e = Params::from_json(&v, &l).unwrap_err();
+            assert_eq!(e.field, field, "{v}: {e}");
+        }
+        let s = Params::from_json(&json!({"snowfall": [[0, 0.01], [6, 0.03]]}), &l).unwrap();
+        assert_eq!(
+            s.snowfall,
+            SnowfallParam::Schedule(vec![[0.0, 0.01], [6.0, 0.03]])
+        );
+    }
+}
