@@ -13,7 +13,9 @@ pub mod probability;
 pub mod region;
 pub mod settle;
 pub mod shadow;
+pub mod shape;
 pub mod snowfall;
+pub mod sparse;
 
 pub use maps::{Layer, SnowMaps, SNOW_UNIT_M};
 pub use probability::{snow_probability, snowfall_directions, Receiver, Wind};

@@ -1,0 +1,539 @@
+//! Snow shape data (journal §2.5 "積雪形状データの作成"; workshop §2.3(4) polygon variant; SPEC §2
+//! step 7): polygon meshes of the snow, built from the snow maps, for `snow.glb` / `scene.glb`, and
+//! the displaced input mesh for `displaced.glb`.
+//!
+//! **Snow meshes** ([`snow_meshes`]). The paper turns every snow map into polygons and renders them
+//! with the scene. We build one **closed** mesh per *connected snow region*: the graph whose nodes
+//! are the map cells `(cell, layer)` with more than `min_depth_m` of snow, and whose edges join
+//! 4-neighbours that link to each other *both ways* ([`super::maps::Layer::links`]: snow from A
+//! moves onto B and from B onto A). So the floor outside a table and the floor under it are one
+//! region (they link both ways across the table's edge), while the table top is another: snow
+//! leaving the top falls onto the floor, but snow on the floor cannot climb onto the top. A region
+//! may span several layer indices; one mesh per layer index would cut the floor at the table's
+//! edge (rejected).
+//!
+//! Each mesh has a top surface at `base + depth`, a bottom face at `base`, and vertical skirts
+//! joining them along the region's boundary. Vertices sit at cell *corners*; a corner is shared by
+//! the region's cells that meet there through linked edges, and its top and bottom heights are the
+//! means of those cells' snow surfaces and bases (so a uniform depth `d` gives `top − bottom = d`
+//! everywhere, and the enclosed volume is the snow volume exactly; for uneven snow the corner
+//! averaging smooths it, see the tests for the tolerance). Every cell gives two top and two bottom
+//! triangles; every boundary edge a two-triangle skirt. Every edge is shared by exactly two
+//! triangles, all wound counter-clockwise seen from outside (signed volume > 0). Normals are
+//! smooth: area-weighted sums of the incident faces' normals (what the journal's smooth shading
+//! does), so rims are rounded in shading. Y up, world metres.
+//!
+//! Snow thinner than `min_depth_m` (default [`DEFAULT_MIN_DEPTH_M`], 1 mm) is left out: that is the
+//! sparse-snow regime ([`super::sparse`]). The ceiling ([`super::maps::Layer::ceiling`]) is not
+//! applied: the mesh shows the model's snow, even where it would reach a table's underside.
+//!
+//! **Displaced mesh** ([`displace`]): workshop §2.3 (polygon variant): the input mesh, optionally
+//! subdivided by edge midpoints until no edge is longer than `max_edge_length` (at most
+//! [`MAX_DISPLACED_TRIANGLES`] triangles), each vertex raised along +Y by the snow depth of the map
+//! layer under it, and a per-vertex snow probability averaged from the incident faces, area-weighted
+//! as for smooth normals (workshop §2.3(2): "スムーズシェーディング時の法線の求め方と同様に").
+//!
+//! Cost: [`snow_meshes`] is `O(cells · layers)` with two union-find arrays (4 `u32` per snowy
+//! cell); the meshes hold ≤ 8 vertices and ≤ 12 triangles per snowy cell. [`displace`] is linear
+//! in the output size. Both allocate their outputs.
+
+use std::collections::HashMap;
+
+use super::maps::{opposite, SnowMaps, NEIGHBOURS};
+use super::region::{STEP_SLOPE_DEG, UP_FACING_MIN_NY};
+use crate::geom::mesh::Mesh;
+
+/// Snow thinner than this (metres) gets no snow mesh (it is sparse snow). 1 mm.
+pub const DEFAULT_MIN_DEPTH_M: f32 = 1e-3;
+
+/// Most triangles [`displace`] produces by subdivision: 4 M triangles ≈ 2 M vertices ≈ 150 MB of
+/// output attributes, about the largest `displaced.glb` a viewer handles. Subdivision stops before
+/// a pass would exceed it (edges may then stay longer than asked).
+pub const MAX_DISPLACED_TRIANGLES: usize = 4_000_000;
+
+/// Most subdivision passes (each halves the long edges; 32 passes cut any edge by 2³²).
+const MAX_SUBDIVISION_PASSES: usize = 32;
+
+/// A closed snow mesh (world metres, Y up, CCW seen from outside).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SnowMesh {
+    /// `snow<i>`, regions numbered in order of their first cell (row-major, then layer).
+    pub name: String,
+    /// Vertex positions, metres.
+    pub positions: Vec<[f32; 3]>,
+    /// Smooth unit normals, one per vertex.
+    pub normals: Vec<[f32; 3]>,
+    /// Vertex indices, CCW seen from outside.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// The displaced input mesh of `displaced.glb` (see the module doc).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DisplacedMesh {
+    /// Positions after subdivision, raised by `depth` along +Y; metres.
+    pub positions: Vec<[f32; 3]>,
+    /// Smooth unit normals of the displaced surface.
+    pub normals: Vec<[f32; 3]>,
+    /// Triangles (the input's winding).
+    pub triangles: Vec<[u32; 3]>,
+    /// Snow probability per vertex in [0, 1], area-weighted mean of the incident faces'.
+    pub probability: Vec<f32>,
+    /// Snow depth per vertex, metres (the amount the vertex was raised).
+    pub depth: Vec<f32>,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small vector helpers
+
+#[inline]
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[inline]
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Twice the area-weighted normal of a triangle (its edge cross product), f64 for accuracy.
+fn face_cross(p: &[[f32; 3]], t: [u32; 3]) -> [f64; 3] {
+    let [a, b, c] = t.map(|i| p[i as usize].map(f64::from));
+    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ]
+}
+
+/// Smooth per-vertex unit normals: the area-weighted sum of the incident faces' normals,
+/// normalised; `[0, 1, 0]` for a vertex with no (non-degenerate) face. Allocates the result.
+pub fn smooth_normals(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<[f32; 3]> {
+    let mut acc = vec![[0.0f64; 3]; positions.len()];
+    for &t in triangles {
+        let n = face_cross(positions, t);
+        for &v in &t {
+            let a = &mut acc[v as usize];
+            a[0] += n[0];
+            a[1] += n[1];
+            a[2] += n[2];
+        }
+    }
+    acc.into_iter()
+        .map(|a| {
+            let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+            if l > 0.0 && l.is_finite() {
+                [(a[0] / l) as f32, (a[1] / l) as f32, (a[2] / l) as f32]
+            } else {
+                [0.0, 1.0, 0.0]
+            }
+        })
+        .collect()
+}
+
+/// Signed volume enclosed by a triangle mesh (divergence theorem), m³; positive for a closed mesh
+/// wound CCW seen from outside.
+pub fn signed_volume(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| positions[i as usize].map(f64::from));
+            let bc = [
+                b[1] * c[2] - b[2] * c[1],
+                b[2] * c[0] - b[0] * c[2],
+                b[0] * c[1] - b[1] * c[0],
+            ];
+            (a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2]) / 6.0
+        })
+        .sum()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Snow meshes
+
+/// Union-find with path halving.
+struct Dsu(Vec<u32>);
+
+impl Dsu {
+    fn new(n: usize) -> Self {
+        Self((0..n as u32).collect())
+    }
+    fn find(&mut self, mut x: u32) -> u32 {
+        while self.0[x as usize] != x {
+            let p = self.0[self.0[x as usize] as usize];
+            self.0[x as usize] = p;
+            x = p;
+        }
+        x
+    }
+    /// Union keeping the smaller root (deterministic roots).
+    fn union(&mut self, a: u32, b: u32) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+            self.0[hi as usize] = lo;
+        }
+    }
+}
+
+/// Corners of a cell: 0 = (i, j), 1 = (i+1, j), 2 = (i+1, j+1), 3 = (i, j+1) (corner offsets).
+const CORNERS: [(usize, usize); 4] = [(0, 0), (1, 0), (1, 1), (0, 1)];
+
+/// Per direction of [`NEIGHBOURS`]: the two corners of this cell on that edge, and the matching
+/// corners of the neighbour across it.
+const EDGE_CORNERS: [([usize; 2], [usize; 2]); 4] = [
+    ([0, 3], [1, 2]), // −X
+    ([1, 2], [0, 3]), // +X
+    ([0, 1], [3, 2]), // −Z
+    ([3, 2], [0, 1]), // +Z
+];
+
+/// Build the closed snow meshes of `maps` (module doc): one per connected region of cells with
+/// more than `min_depth_m` metres of snow (default [`DEFAULT_MIN_DEPTH_M`]); none when no cell has.
+/// Allocates the meshes and `O(cells · layers)` scratch.
+pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
+    let n = maps.len();
+    let nl = maps.layers.len();
+    // Nodes: snowy (cell, layer), numbered row-major then by layer.
+    let mut node_of = vec![u32::MAX; n * nl];
+    let mut nodes: Vec<(usize, usize)> = Vec::new();
+    for c in 0..n {
+        for (k, l) in maps.layers.iter().enumerate() {
+            if !l.base[c].is_nan() && l.depth_m(c) > min_depth_m {
+                node_of[c * nl + k] = nodes.len() as u32;
+                nodes.push((c, k));
+            }
+        }
+    }
+    if nodes.is_empty() {
+        return Vec::new();
+    }
+    let node_at = |c: usize, k: usize| -> Option<u32> {
+        (k < nl)
+            .then(|| node_of[c * nl + k])
+            .filter(|&v| v != u32::MAX)
+    };
+
+    // Regions (nodes) and shared corners (node * 4 + corner) through mutual links.
+    let mut regions = Dsu::new(nodes.len());
+    let mut corners = Dsu::new(nodes.len() * 4);
+    for (a, &(c, k)) in nodes.iter().enumerate() {
+        let (i, j) = (c % maps.nx, c / maps.nx);
+        for (d, &(mine, theirs)) in EDGE_CORNERS.iter().enumerate() {
+            let Some(c2) = maps.neighbour(i, j, d) else {
+                continue;
+            };
+            let k2 = maps.layers[k].links[c][d] as usize;
+            let Some(b) = node_at(c2, k2) else { continue };
+            if maps.layers[k2].links[c2][opposite(d)] as usize != k || (b as usize) < a {
+                continue;
+            }
+            regions.union(a as u32, b);
+            for e in 0..2 {
+                corners.union(a as u32 * 4 + mine[e] as u32, b * 4 + theirs[e] as u32);
+            }
+        }
+    }
+
+    // Corner heights: mean surface and base over the cells sharing each corner.
+    let mut sums = vec![[0.0f64; 3]; nodes.len() * 4]; // (top, base, count) at roots
+    for (a, &(c, k)) in nodes.iter().enumerate() {
+        let l = &maps.layers[k];
+        for q in 0..4 {
+            let r = corners.find(a as u32 * 4 + q as u32) as usize;
+            sums[r][0] += f64::from(l.surface(c));
+            sums[r][1] += f64::from(l.base[c]);
+            sums[r][2] += 1.0;
+        }
+    }
+
+    // Group nodes by region, in order of the region's first node.
+    let mut region_index: HashMap<u32, usize> = HashMap::new();
+    let mut members: Vec<Vec<u32>> = Vec::new();
+    for a in 0..nodes.len() as u32 {
+        let r = regions.find(a);
+        let idx = *region_index.entry(r).or_insert_with(|| {
+            members.push(Vec::new());
+            members.len() - 1
+        });
+        members[idx].push(a);
+    }
+
+    let mut out = Vec::with_capacity(members.len());
+    for (ri, list) in members.iter().enumerate() {
+        let mut m = SnowMesh {
+            name: format!("snow{ri}"),
+            ..SnowMesh::default()
+        };
+        // Corner root → (top vertex, bottom vertex).
+        let mut verts: HashMap<u32, (u32, u32)> = HashMap::new();
+        let mut vertex = |m: &mut SnowMesh, corners: &mut Dsu, a: u32, q: usize| -> (u32, u32) {
+            let r = corners.find(a * 4 + q as u32);
+            *verts.entry(r).or_insert_with(|| {
+                let (c, _) = nodes[a as usize];
+                let (i, j) = (c % maps.nx + CORNERS[q].0, c / maps.nx + CORNERS[q].1);
+                let x = maps.origin[0] + i as f32 * maps.cell;
+                let z = maps.origin[1] + j as f32 * maps.cell;
+                let s = sums[r as usize];
+                let top = (s[0] / s[2]) as f32;
+                let bottom = (s[1] / s[2]) as f32;
+                let t = m.positions.len() as u32;
+                m.positions.push([x, top, z]);
+                m.positions.push([x, bottom, z]);
+                (t, t + 1)
+            })
+        };
+        for &a in list {
+            let c = nodes[a as usize].0;
+            let v: [(u32, u32); 4] = std::array::from_fn(|q| vertex(&mut m, &mut corners, a, q));
+            // Top (normal +Y): corners 0 (i,j), 3 (i,j+1), 1 (i+1,j) — see the winding test.
+            m.triangles.push([v[0].0, v[3].0, v[1].0]);
+            m.triangles.push([v[1].0, v[3].0, v[2].0]);
+            // Bottom (normal −Y).
+            m.triangles.push([v[0].1, v[1].1, v[3].1]);
+            m.triangles.push([v[1].1, v[2].1, v[3].1]);
+            // Skirts on boundary edges: no snowy cell across whose corners are these corners.
+            let (i, j) = (c % maps.nx, c / maps.nx);
+            for (d, &(mine, theirs)) in EDGE_CORNERS.iter().enumerate() {
+                let shared = maps.neighbour(i, j, d).is_some_and(|c2| {
+                    (0..nl).any(|k2| {
+                        node_at(c2, k2).is_some_and(|b| {
+                            (0..2).all(|e| {
+                                corners.find(a * 4 + mine[e] as u32)
+                                    == corners.find(b * 4 + theirs[e] as u32)
+                            })
+                        })
+                    })
+                });
+                if shared {
+                    continue;
+                }
+                let (p, q) = (v[mine[0]], v[mine[1]]);
+                let (dx, dz) = NEIGHBOURS[d];
+                let out_dir = [dx as f32, 0.0, dz as f32];
+                // (bottom p, top p, top q): flip if its normal does not point outward.
+                let n = cross(
+                    sub(m.positions[p.0 as usize], m.positions[p.1 as usize]),
+                    sub(m.positions[q.0 as usize], m.positions[p.1 as usize]),
+                );
+                if dot(n, out_dir) > 0.0 {
+                    m.triangles.push([p.1, p.0, q.0]);
+                    m.triangles.push([p.1, q.0, q.1]);
+                } else {
+                    m.triangles.push([p.1, q.0, p.0]);
+                    m.triangles.push([p.1, q.1, q.0]);
+                }
+            }
+        }
+        m.normals = smooth_normals(&m.positions, &m.triangles);
+        out.push(m);
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Displaced mesh (polygon variant)
+
+/// The map layer at world point `p`: the layer whose base is nearest below `p` (or above by at most
+/// the map's depth epsilon) and within one continuous step (`cell · tan 75°`) of it, looked up in
+/// the cell containing `p` and, failing that, its 8 neighbours (points on a cell's edge). Returns
+/// `(cell, layer)`.
+pub fn layer_at(maps: &SnowMaps, p: [f32; 3]) -> Option<(usize, usize)> {
+    if maps.is_empty() {
+        return None;
+    }
+    let fi = ((p[0] - maps.origin[0]) / maps.cell).floor();
+    let fj = ((p[2] - maps.origin[1]) / maps.cell).floor();
+    let ci = (fi.max(0.0) as usize).min(maps.nx - 1);
+    let cj = (fj.max(0.0) as usize).min(maps.nz - 1);
+    let above = maps.extent * super::region::DEPTH_EPS_REL + 1e-5;
+    let below = maps.cell * STEP_SLOPE_DEG.to_radians().tan() + above;
+    let search = |i: usize, j: usize| -> Option<(f32, usize, usize)> {
+        let c = j * maps.nx + i;
+        let mut best: Option<(f32, usize, usize)> = None;
+        for (k, l) in maps.layers.iter().enumerate() {
+            let d = p[1] - l.base[c];
+            if d >= -above && d <= below && best.is_none_or(|b| d.abs() < b.0) {
+                best = Some((d.abs(), c, k));
+            }
+        }
+        best
+    };
+    if let Some(b) = search(ci, cj) {
+        return Some((b.1, b.2));
+    }
+    let mut best: Option<(f32, usize, usize)> = None;
+    for dj in -1isize..=1 {
+        for di in -1isize..=1 {
+            let (i, j) = (ci as isize + di, cj as isize + dj);
+            if (di, dj) == (0, 0)
+                || i < 0
+                || j < 0
+                || i >= maps.nx as isize
+                || j >= maps.nz as isize
+            {
+                continue;
+            }
+            if let Some(b) = search(i as usize, j as usize) {
+                if best.is_none_or(|x| b.0 < x.0) {
+                    best = Some(b);
+                }
+            }
+        }
+    }
+    best.map(|b| (b.1, b.2))
+}
+
+/// Subdivide by edge midpoints until no edge is longer than `max_len` (or the triangle cap or
+/// pass limit is reached). Deterministic: midpoints are keyed by their sorted vertex pair and
+/// created in triangle order.
+fn subdivide(positions: &mut Vec<[f32; 3]>, triangles: &mut Vec<[u32; 3]>, max_len: f32) {
+    let too_long = |p: &[[f32; 3]], a: u32, b: u32| {
+        let d = sub(p[a as usize], p[b as usize]);
+        dot(d, d) > max_len * max_len
+    };
+    for _ in 0..MAX_SUBDIVISION_PASSES {
+        let splits: usize = triangles
+            .iter()
+            .map(|t| {
+                (0..3)
+                    .filter(|&e| too_long(positions, t[e], t[(e + 1) % 3]))
+                    .count()
+            })
+            .sum();
+        if splits == 0 || triangles.len() + splits > MAX_DISPLACED_TRIANGLES {
+            return;
+        }
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(triangles.len() + splits);
+        for &t in triangles.iter() {
+            let mut m = [u32::MAX; 3]; // midpoint of edge e = (t[e], t[e+1])
+            for e in 0..3 {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                if too_long(positions, a, b) {
+                    let key = (a.min(b), a.max(b));
+                    m[e] = *mid.entry(key).or_insert_with(|| {
+                        let (pa, pb) = (positions[a as usize], positions[b as usize]);
+                        positions.push([
+                            0.5 * (pa[0] + pb[0]),
+                            0.5 * (pa[1] + pb[1]),
+                            0.5 * (pa[2] + pb[2]),
+                        ]);
+                        positions.len() as u32 - 1
+                    });
+                }
+            }
+            let split: Vec<usize> = (0..3).filter(|&e| m[e] != u32::MAX).collect();
+            match split.len() {
+                0 => next.push(t),
+                1 => {
+                    // Edge e split: (a, m, c), (m, b, c).
+                    let e = split[0];
+                    let (a, b, c) = (t[e], t[(e + 1) % 3], t[(e + 2) % 3]);
+                    next.push([a, m[e], c]);
+                    next.push([m[e], b, c]);
+                }
+                2 => {
+                    // The unsplit edge u = (a, b); c opposite. Midpoints mb on (b, c), mc on (c, a).
+                    let u = (0..3).find(|&e| m[e] == u32::MAX).unwrap_or(0);
+                    let (a, b, c) = (t[u], t[(u + 1) % 3], t[(u + 2) % 3]);
+                    let (mb, mc) = (m[(u + 1) % 3], m[(u + 2) % 3]);
+                    next.push([mc, mb, c]);
+                    // Quad (a, b, mb, mc): cut along its shorter diagonal (ties: a–mb).
+                    let d1 = sub(positions[a as usize], positions[mb as usize]);
+                    let d2 = sub(positions[b as usize], positions[mc as usize]);
+                    if dot(d1, d1) <= dot(d2, d2) {
+                        next.push([a, b, mb]);
+                        next.push([a, mb, mc]);
+                    } else {
+                        next.push([a, b, mc]);
+                        next.push([b, mb, mc]);
+                    }
+                }
+                _ => {
+                    let (a, b, c) = (t[0], t[1], t[2]);
+                    next.push([a, m[0], m[2]]);
+                    next.push([m[0], b, m[1]]);
+                    next.push([m[2], m[1], c]);
+                    next.push([m[0], m[1], m[2]]);
+                }
+            }
+        }
+        *triangles = next;
+    }
+}
+
+/// The polygon variant for `displaced.glb` (module doc): subdivide `mesh` so that no edge exceeds
+/// `max_edge_length` metres (`None`: no subdivision; capped at [`MAX_DISPLACED_TRIANGLES`]), then
+/// per face the snow probability of the map layer under its centroid (0 for faces that do not face
+/// up, `n_y ≤ 0.05`), per vertex the area-weighted mean of its faces' probabilities, and the snow
+/// depth of the layer under the vertex (0 for vertices with no up-facing face, or off the maps);
+/// vertices are raised by that depth along +Y. Allocates the output.
+pub fn displace(mesh: &Mesh, maps: &SnowMaps, max_edge_length: Option<f32>) -> DisplacedMesh {
+    let mut positions = mesh.positions.clone();
+    let mut triangles = mesh.triangles.clone();
+    if let Some(l) = max_edge_length.filter(|l| l.is_finite() && *l > 0.0) {
+        subdivide(&mut positions, &mut triangles, l);
+    }
+    let nv = positions.len();
+    let mut p_acc = vec![(0.0f64, 0.0f64); nv]; // (Σ area·P, Σ area)
+    let mut up = vec![false; nv];
+    for &t in &triangles {
+        let n = face_cross(&positions, t);
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let area = 0.5 * len;
+        let facing_up = len > 0.0 && n[1] / len > f64::from(UP_FACING_MIN_NY);
+        let prob = if facing_up {
+            let [a, b, c] = t.map(|i| positions[i as usize]);
+            let g = [
+                (a[0] + b[0] + c[0]) / 3.0,
+                (a[1] + b[1] + c[1]) / 3.0,
+                (a[2] + b[2] + c[2]) / 3.0,
+            ];
+            layer_at(maps, g).map_or(0.0, |(cell, k)| maps.layers[k].probability[cell])
+        } else {
+            0.0
+        };
+        for &v in &t {
+            let acc = &mut p_acc[v as usize];
+            acc.0 += area * f64::from(prob);
+            acc.1 += area;
+            up[v as usize] |= facing_up;
+        }
+    }
+    let probability = p_acc
+        .iter()
+        .map(|&(s, w)| if w > 0.0 { (s / w) as f32 } else { 0.0 })
+        .collect();
+    let depth: Vec<f32> = positions
+        .iter()
+        .zip(&up)
+        .map(|(&p, &u)| {
+            if !u {
+                return 0.0;
+            }
+            layer_at(maps, p).map_or(0.0, |(cell, k)| maps.layers[k].depth_m(cell))
+        })
+        .collect();
+    for (p, d) in positions.iter_mut().zip(&depth) {
+        p[1] += d;
+    }
+    let normals = smooth_normals(&positions, &triangles);
+    DisplacedMesh {
+        positions,
+        normals,
+        triangles,
+        probability,
+        depth,
+    }
+}

@@ -1,0 +1,171 @@
+//! Sparse snow (workshop §2.1(4) "積雪が非常に少量の場合" and §2.3(5) "例外的な処理"; SPEC §2 step 6):
+//! where snow is too thin to model as an amount, or on faces at 90° or more to the ground where
+//! it cannot rest, the paper shows *flakes stuck sparsely* to the surface, as a texture whose
+//! sparseness follows the amount of snow and two angles. We export a per-vertex **coverage** in
+//! [0, 1] (the share of the surface the flake texture covers) and a generated, tileable flake
+//! texture ([`flake_texture`]).
+//!
+//! **Our reading of the paper's conditions** (§2.3(5)): "the larger the angle between the snowfall
+//! direction and the face, the larger the sticking" and "the larger the angle to the ground, the
+//! larger the sticking"; "combine them". With the face's unit normal `n`, the snowfall direction
+//! `s` (unit, the way the snow travels, `[0, −1, 0]` without wind):
+//!
+//! * angle to the ground `γ = acos(n_y)` ∈ [0°, 180°] (0 flat and facing up, 90° a wall, 180° an
+//!   underside), term `g = γ / 180°` ∈ [0, 1];
+//! * angle of incidence `α = asin(n · (−s))` ∈ [−90°, 90°]: the angle between the snowfall
+//!   direction and the face's plane, positive on the side the snow comes from, term
+//!   `h = (1 + sin α) / 2` ∈ [0, 1] (1 when snow hits the face square on, ½ grazing, 0 from behind);
+//! * "combined" as a product, `a = g · h` (both conditions must hold; an underside gets none);
+//! * the amount (§2.1(4)): `f = min(depth / sparse_depth, 1)` on faces below 90°, 0 on steeper ones
+//!   (no snow rests there).
+//!
+//! `coverage = f + (1 − f) · a` where the face is at 90° or more to the ground or its snow is
+//! thinner than `sparse_depth`; `0` elsewhere (deep snow on a face below 90°: the snow mesh covers
+//! it). So coverage is non-decreasing in γ, in α and in the depth (below `sparse_depth`), 0 on open
+//! flat ground under deep snow or with no snow at all (γ = 0 ⇒ a = 0, f = 0), and reaches 1 as thin
+//! snow approaches `sparse_depth`. Rejected: a sum `(g + h) / 2` (gives the underside of a table
+//! flakes under vertical snowfall, which the paper's Fig. 5 does not show).
+//!
+//! The texture: white flakes (RGB 255, straight alpha) of random radius at random points on a torus,
+//! so that the image tiles; seeded SplitMix64, deterministic. Cost: `O(size² + flakes · r²)`.
+
+/// Sparse-flake coverage from the two angles (degrees) and the snow amount (module doc).
+/// `ground_deg` ∈ [0, 180] (clamped), `incidence_deg` ∈ [−90, 90] (clamped), `depth` and
+/// `sparse_depth` in metres (`sparse_depth ≤ 0`: no thin-snow regime).
+pub fn coverage_from_angles(
+    ground_deg: f32,
+    incidence_deg: f32,
+    depth: f32,
+    sparse_depth: f32,
+) -> f32 {
+    let gamma = ground_deg.clamp(0.0, 180.0);
+    let steep = gamma >= 90.0;
+    let thin = sparse_depth > 0.0 && depth < sparse_depth;
+    if !steep && !thin {
+        return 0.0;
+    }
+    let g = gamma / 180.0;
+    let h = 0.5 * (1.0 + incidence_deg.clamp(-90.0, 90.0).to_radians().sin());
+    let a = g * h;
+    let f = if steep || sparse_depth <= 0.0 {
+        0.0
+    } else {
+        (depth.max(0.0) / sparse_depth).min(1.0)
+    };
+    (f + (1.0 - f) * a).clamp(0.0, 1.0)
+}
+
+/// The two angles of a face with unit normal `normal` under snowfall direction `snowfall` (unit, the
+/// way snow travels): `(ground_deg, incidence_deg)` as in the module doc.
+pub fn face_angles(normal: [f32; 3], snowfall: [f32; 3]) -> (f32, f32) {
+    let ground = normal[1].clamp(-1.0, 1.0).acos().to_degrees();
+    let d = -(normal[0] * snowfall[0] + normal[1] * snowfall[1] + normal[2] * snowfall[2]);
+    let incidence = d.clamp(-1.0, 1.0).asin().to_degrees();
+    (ground, incidence)
+}
+
+/// Coverage of one face (module doc).
+pub fn face_coverage(normal: [f32; 3], snowfall: [f32; 3], depth: f32, sparse_depth: f32) -> f32 {
+    let (g, i) = face_angles(normal, snowfall);
+    coverage_from_angles(g, i, depth, sparse_depth)
+}
+
+/// Per-vertex coverage of a mesh (e.g. the displaced mesh): per face, [`face_coverage`] of its
+/// normal with the mean of its vertices' `depth` (metres); per vertex, the area-weighted mean of
+/// its faces' (as for smooth normals); 0 for a vertex with no non-degenerate face. Allocates the
+/// result.
+pub fn vertex_coverage(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    depth: &[f32],
+    snowfall: [f32; 3],
+    sparse_depth: f32,
+) -> Vec<f32> {
+    let mut acc = vec![(0.0f64, 0.0f64); positions.len()];
+    for &t in triangles {
+        let [a, b, c] = t.map(|i| positions[i as usize].map(f64::from));
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if len <= 0.0 || len.is_nan() {
+            continue;
+        }
+        let unit = n.map(|x| (x / len) as f32);
+        let d = t
+            .iter()
+            .map(|&i| depth.get(i as usize).copied().unwrap_or(0.0))
+            .sum::<f32>()
+            / 3.0;
+        let cov = f64::from(face_coverage(unit, snowfall, d, sparse_depth));
+        let area = 0.5 * len;
+        for &i in &t {
+            let e = &mut acc[i as usize];
+            e.0 += area * cov;
+            e.1 += area;
+        }
+    }
+    acc.into_iter()
+        .map(|(s, w)| if w > 0.0 { (s / w) as f32 } else { 0.0 })
+        .collect()
+}
+
+/// SplitMix64 step.
+fn splitmix(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Uniform in [0, 1).
+fn unit(state: &mut u64) -> f32 {
+    (splitmix(state) >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// A tileable flake texture, `size × size` RGBA8 (row-major, straight alpha, sRGB white): about one
+/// flake per 64 pixels, radii 0.8–2.5 px (scaled by `size / 256`), soft edges, alpha the maximum
+/// over flakes; positions wrap around both edges (a torus), so the image tiles seamlessly.
+/// Deterministic for `(size, seed)`. `size` is clamped to 4..=4096 (4096² × 4 B = 64 MiB, the largest
+/// texture a glTF viewer should need). Allocates `size² × 4` bytes.
+pub fn flake_texture(size: usize, seed: u64) -> Vec<u8> {
+    let size = size.clamp(4, 4096);
+    let mut alpha = vec![0.0f32; size * size];
+    let mut st = seed ^ 0x5EED_F1A4_E000_0000;
+    let flakes = (size * size) / 64;
+    let scale = size as f32 / 256.0;
+    let s = size as isize;
+    for _ in 0..flakes {
+        let cx = unit(&mut st) * size as f32;
+        let cy = unit(&mut st) * size as f32;
+        let r = (0.8 + 1.7 * unit(&mut st)) * scale.max(0.25);
+        let peak = 0.6 + 0.4 * unit(&mut st);
+        let reach = (r + 1.0).ceil() as isize;
+        let (x0, y0) = (cx.floor() as isize, cy.floor() as isize);
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let (px, py) = (x0 + dx, y0 + dy);
+                // Distance from the pixel centre (unwrapped), then wrap the pixel onto the torus.
+                let fx = px as f32 + 0.5 - cx;
+                let fy = py as f32 + 0.5 - cy;
+                let d = (fx * fx + fy * fy).sqrt();
+                let a = peak * (r + 0.5 - d).clamp(0.0, 1.0);
+                if a > 0.0 {
+                    let (wx, wy) = (px.rem_euclid(s) as usize, py.rem_euclid(s) as usize);
+                    let cell = &mut alpha[wy * size + wx];
+                    *cell = cell.max(a);
+                }
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(size * size * 4);
+    for a in alpha {
+        out.extend_from_slice(&[255, 255, 255, (a * 255.0).round() as u8]);
+    }
+    out
+}
