@@ -353,34 +353,10 @@ impl<'a> TerrainAccel<'a> {
             let (w, h) = self.dims(level);
             let mut new_parent = false;
             if tx <= tz {
-                if r.du > 0.0 {
-                    ci += 1;
-                    if ci >= w {
-                        return None;
-                    }
-                    new_parent |= ci & 1 == 0;
-                } else {
-                    if ci == 0 {
-                        return None;
-                    }
-                    ci -= 1;
-                    new_parent |= ci & 1 == 1;
-                }
+                new_parent |= step_axis(&mut ci, r.du > 0.0, w)?;
             }
             if tz <= tx {
-                if r.dv > 0.0 {
-                    cj += 1;
-                    if cj >= h {
-                        return None;
-                    }
-                    new_parent |= cj & 1 == 0;
-                } else {
-                    if cj == 0 {
-                        return None;
-                    }
-                    cj -= 1;
-                    new_parent |= cj & 1 == 1;
-                }
+                new_parent |= step_axis(&mut cj, r.dv > 0.0, h)?;
             }
             if new_parent && level < top {
                 level += 1;
@@ -1264,4 +1240,23 @@ fn render_raster(
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
     raster::render_adaptive(&rast, base.light.samples, &shade, ctl, &report)
+}
+
+/// Steps a node index one node along the ray (`forward` = increasing index) on a level `n` nodes
+/// wide. `None` when the ray leaves the grid; otherwise whether it crossed into a new parent node.
+#[inline]
+fn step_axis(c: &mut usize, forward: bool, n: usize) -> Option<bool> {
+    if forward {
+        *c += 1;
+        if *c >= n {
+            return None;
+        }
+        Some(*c & 1 == 0)
+    } else {
+        if *c == 0 {
+            return None;
+        }
+        *c -= 1;
+        Some(*c & 1 == 1)
+    }
 }
