@@ -16,14 +16,16 @@
 //!   direction and the face's plane, positive on the side the snow comes from, term
 //!   `h = (1 + sin α) / 2` ∈ [0, 1] (1 when snow hits the face square on, ½ grazing, 0 from behind);
 //! * "combined" as a product, `a = g · h` (both conditions must hold; an underside gets none);
-//! * the amount (§2.1(4)): `f = min(depth / sparse_depth, 1)` on faces below 90°, 0 on steeper ones
-//!   (no snow rests there).
+//! * the amount (§2.1(4)): `f = min(depth / sparse_depth, 1)` (on a face at 90° or more the model
+//!   rests no snow, so `depth` there is 0 unless averaged in from a neighbouring top face; counting
+//!   it keeps the coverage continuous across 90°).
 //!
 //! `coverage = f + (1 − f) · a` where the face is at 90° or more to the ground or its snow is
 //! thinner than `sparse_depth`; `0` elsewhere (deep snow on a face below 90°: the snow mesh covers
 //! it). So coverage is non-decreasing in γ, in α and in the depth (below `sparse_depth`), 0 on open
 //! flat ground under deep snow or with no snow at all (γ = 0 ⇒ a = 0, f = 0), and reaches 1 as thin
-//! snow approaches `sparse_depth`. Rejected: a sum `(g + h) / 2` (gives the underside of a table
+//! snow approaches `sparse_depth`, where the snow mesh takes over (in depth it is monotone up to
+//! `sparse_depth` and drops to 0 beyond it on faces below 90°: that is the hand-over). Rejected: a sum `(g + h) / 2` (gives the underside of a table
 //! flakes under vertical snowfall, which the paper's Fig. 5 does not show).
 //!
 //! The texture: white flakes (RGB 255, straight alpha) of random radius at random points on a torus,
@@ -47,7 +49,7 @@ pub fn coverage_from_angles(
     let g = gamma / 180.0;
     let h = 0.5 * (1.0 + incidence_deg.clamp(-90.0, 90.0).to_radians().sin());
     let a = g * h;
-    let f = if steep || sparse_depth <= 0.0 {
+    let f = if sparse_depth <= 0.0 {
         0.0
     } else {
         (depth.max(0.0) / sparse_depth).min(1.0)

@@ -10,4 +10,5 @@ mod mesh_formats;
 mod mesh_output;
 mod render;
 mod snow_cover;
+mod snow_shape;
 mod snow_terrain;
