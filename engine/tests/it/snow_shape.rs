@@ -7,7 +7,7 @@ use std::collections::HashMap;
 
 use phenomena_engine::geom::mesh::{Mesh, MeshPart};
 use phenomena_engine::snow_cover::shape::{
-    displace, signed_volume, snow_meshes, SnowMesh, DEFAULT_MIN_DEPTH_M,
+    displace, signed_volume, snow_meshes, subdivide, SnowMesh, DEFAULT_MIN_DEPTH_M,
 };
 use phenomena_engine::snow_cover::sparse::{
     coverage_from_angles, face_coverage, flake_texture, vertex_coverage,
@@ -479,6 +479,19 @@ fn subdivision_respects_max_edge_length_and_stays_crack_free() {
     }
     // Deterministic.
     assert_eq!(displace(&mesh, &maps, Some(max)), out);
+}
+
+#[test]
+fn subdivision_stops_before_the_triangle_cap() {
+    let mesh = plane(1);
+    let (mut p, mut t) = (mesh.positions.clone(), mesh.triangles.clone());
+    subdivide(&mut p, &mut t, 1e-4, 500);
+    // Passes grow 2 → 8 → 32 → 128 → 512 (> 500): stops at 128, edges still long.
+    assert_eq!(t.len(), 128);
+    assert!(t.iter().all(|t| t.iter().all(|&i| (i as usize) < p.len())));
+    let (mut p2, mut t2) = (mesh.positions.clone(), mesh.triangles.clone());
+    subdivide(&mut p2, &mut t2, 1e-4, 500);
+    assert_eq!((p, t), (p2, t2));
 }
 
 #[test]
