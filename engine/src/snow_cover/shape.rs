@@ -37,11 +37,11 @@
 //! over itself (a ramp winding once around a column, linked all the way) could share a corner
 //! between two stacked cells; no scene in the tests does, and [`snow_meshes`] does not detect it.
 //!
-//! Cost: [`snow_meshes`] is `O(cells · layers)` with a `u32` per (cell, layer) and two union-find arrays (5 `u32` per snowy
-//! cell) and a hash map of corners per region; the meshes hold ≈ 2 vertices and 4 triangles per
-//! snowy cell plus the skirts (measured: a fully covered 512² map, 1.05 M triangles, 0.22 s on one
-//! core). [`displace`] is linear in the output size (1 M triangles by subdivision: 0.2 s). Both
-//! allocate their outputs.
+//! Cost: [`snow_meshes`] is `O(cells · layers)`: a `u32` per (cell, layer), two union-find arrays
+//! (5 `u32` per snowy cell) and a hash map of corners per region; the meshes hold ≈ 2 vertices and
+//! 4 triangles per snowy cell plus the skirts (measured: a fully covered 512² map, 1.05 M
+//! triangles, 0.22 s on one core). [`displace`] is linear in the output size (1 M triangles by
+//! subdivision: 0.2 s). Both allocate their outputs.
 
 use std::collections::HashMap;
 
