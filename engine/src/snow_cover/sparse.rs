@@ -25,8 +25,10 @@
 //! it). So coverage is non-decreasing in γ, in α and in the depth (below `sparse_depth`), 0 on open
 //! flat ground under deep snow or with no snow at all (γ = 0 ⇒ a = 0, f = 0), and reaches 1 as thin
 //! snow approaches `sparse_depth`, where the snow mesh takes over (in depth it is monotone up to
-//! `sparse_depth` and drops to 0 beyond it on faces below 90°: that is the hand-over). Rejected: a sum `(g + h) / 2` (gives the underside of a table
-//! flakes under vertical snowfall, which the paper's Fig. 5 does not show).
+//! `sparse_depth` and drops to 0 beyond it on faces below 90°: that is the hand-over).
+//!
+//! Rejected: a sum `(g + h) / 2` (it gives a table's underside flakes under vertical snowfall,
+//! where no snow reaches); the paper gives no formula, only the two monotone conditions above.
 //!
 //! The texture: white flakes (RGB 255, straight alpha) of random radius at random points on a torus,
 //! so that the image tiles; seeded SplitMix64, deterministic. Cost: `O(size² + flakes · r²)`.

@@ -631,7 +631,7 @@ fn flake_texture_is_deterministic_and_tileable() {
     assert!((0..n).any(|y| alpha(0, y) > 0.0));
 }
 
-/// Timing at the default resolution (512², one layer fully covered): `cargo test --release -- --ignored`.
+/// Timing at the default resolution (512², one layer fully covered); run with `--ignored`.
 #[test]
 #[ignore]
 fn snow_mesh_timing_at_512() {
