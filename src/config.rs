@@ -39,6 +39,9 @@ pub struct ServeArgs {
     /// Largest output image in pixels (width × height). Default 33177600 (7680×4320).
     #[arg(long, env = "PHENOMENA_MAX_OUTPUT_PIXELS")]
     pub max_output_pixels: Option<u64>,
+    /// Largest input mesh in triangles. Default 4000000.
+    #[arg(long, env = "PHENOMENA_MAX_INPUT_TRIANGLES")]
+    pub max_input_triangles: Option<u64>,
     /// Jobs running at once. Default 1 (each job uses every core).
     #[arg(long, env = "PHENOMENA_CONCURRENCY")]
     pub concurrency: Option<usize>,
@@ -76,6 +79,7 @@ pub struct Config {
     pub max_body_bytes: usize,
     pub max_input_cells: u64,
     pub max_output_pixels: u64,
+    pub max_input_triangles: u64,
     pub concurrency: usize,
     pub queue_capacity: usize,
     pub job_timeout_secs: u64,
@@ -112,6 +116,7 @@ impl Default for Config {
             max_body_bytes: 256 << 20,
             max_input_cells: 8192 * 8192,
             max_output_pixels: 7680 * 4320,
+            max_input_triangles: 4_000_000,
             concurrency: 1,
             queue_capacity: 64,
             job_timeout_secs: 600,
@@ -157,6 +162,7 @@ impl Config {
             max_body_bytes: pick!(max_body_bytes),
             max_input_cells: pick!(max_input_cells),
             max_output_pixels: pick!(max_output_pixels),
+            max_input_triangles: pick!(max_input_triangles),
             concurrency: pick!(concurrency),
             queue_capacity: pick!(queue_capacity),
             job_timeout_secs: pick!(job_timeout_secs),
@@ -191,6 +197,7 @@ impl Config {
         phenomena_engine::pipeline::Limits {
             max_input_cells: self.max_input_cells,
             max_output_pixels: self.max_output_pixels,
+            max_input_triangles: self.max_input_triangles,
         }
     }
 }

@@ -88,7 +88,7 @@ impl PipelineSet for EnginePipelines {
         filename: Option<&str>,
     ) -> Result<(), InputError> {
         let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
-        pipeline::decode(&p, input, filename, &self.limits).map(|_| ())
+        pipeline::decode(p, input, filename, &self.limits).map(|_| ())
     }
 
     fn run(
@@ -100,7 +100,7 @@ impl PipelineSet for EnginePipelines {
         ctl: &dyn Control,
     ) -> Result<Vec<Output>, RunError> {
         let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
-        let decoded = pipeline::decode(&p, input, filename, &self.limits)?;
-        Ok(pipeline::run(&p, &decoded, ctl)?)
+        let job = pipeline::decode(p, input, filename, &self.limits)?;
+        Ok(pipeline::run(&job, ctl)?)
     }
 }

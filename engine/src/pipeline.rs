@@ -3,7 +3,8 @@
 
 use crate::formats::dem::{decode_dem, DemOptions};
 use crate::geom::Dem;
-use crate::{snow_terrain, Canceled, Control, InputError, Output, ParamError};
+use crate::geom::Mesh;
+use crate::{snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError};
 
 /// Input and output size limits (configured by the server; the CLI uses the defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -12,6 +13,9 @@ pub struct Limits {
     pub max_input_cells: u64,
     /// Largest output image, pixels.
     pub max_output_pixels: u64,
+    /// Largest input mesh, triangles (vertices: 3×). Checked from the file's counts before the
+    /// mesh is allocated.
+    pub max_input_triangles: u64,
 }
 
 impl Default for Limits {
@@ -19,6 +23,7 @@ impl Default for Limits {
         Self {
             max_input_cells: 8192 * 8192,
             max_output_pixels: 7680 * 4320,
+            max_input_triangles: 4_000_000,
         }
     }
 }
@@ -28,15 +33,18 @@ impl Default for Limits {
 pub enum PipelineKind {
     /// Snow on terrain (SPEC §1).
     SnowTerrain,
+    /// Snow cover on meshes (SPEC §2).
+    SnowCover,
 }
 
 impl PipelineKind {
-    pub const ALL: &'static [PipelineKind] = &[PipelineKind::SnowTerrain];
+    pub const ALL: &'static [PipelineKind] = &[PipelineKind::SnowTerrain, PipelineKind::SnowCover];
 
     /// The API name (`snow-terrain`).
     pub fn name(self) -> &'static str {
         match self {
             PipelineKind::SnowTerrain => "snow-terrain",
+            PipelineKind::SnowCover => "snow-cover",
         }
     }
 
@@ -48,6 +56,7 @@ impl PipelineKind {
     pub fn input_part(self) -> &'static str {
         match self {
             PipelineKind::SnowTerrain => "dem",
+            PipelineKind::SnowCover => "mesh",
         }
     }
 }
@@ -76,6 +85,7 @@ pub fn deserialize_params<T: serde::de::DeserializeOwned>(
 #[derive(Debug, Clone, PartialEq)]
 pub enum Params {
     SnowTerrain(Box<snow_terrain::Params>),
+    SnowCover(Box<snow_cover::Params>),
 }
 
 impl Params {
@@ -89,6 +99,9 @@ impl Params {
             PipelineKind::SnowTerrain => Ok(Params::SnowTerrain(Box::new(
                 snow_terrain::Params::from_json(v, limits)?,
             ))),
+            PipelineKind::SnowCover => Ok(Params::SnowCover(Box::new(
+                snow_cover::Params::from_json(v, limits)?,
+            ))),
         }
     }
 
@@ -97,25 +110,33 @@ impl Params {
     pub fn canonical(&self) -> serde_json::Value {
         let v = match self {
             Params::SnowTerrain(p) => serde_json::to_value(p),
+            Params::SnowCover(p) => serde_json::to_value(p),
         };
         // Serialising plain structs of numbers, strings and options cannot fail.
         v.unwrap_or(serde_json::Value::Null)
     }
 }
 
-/// A decoded input.
+/// A pipeline's validated parameters with its decoded input: ready to run.
 #[derive(Debug, Clone)]
-pub enum Input {
-    Dem(Dem),
+pub enum Job {
+    SnowTerrain {
+        params: Box<snow_terrain::Params>,
+        dem: Dem,
+    },
+    SnowCover {
+        params: Box<snow_cover::Params>,
+        mesh: Mesh,
+    },
 }
 
 /// Decodes `bytes` as the input of the pipeline `params` belongs to.
 pub fn decode(
-    params: &Params,
+    params: Params,
     bytes: &[u8],
     filename: Option<&str>,
     limits: &Limits,
-) -> Result<Input, InputError> {
+) -> Result<Job, InputError> {
     match params {
         Params::SnowTerrain(p) => {
             let opts = DemOptions {
@@ -123,14 +144,20 @@ pub fn decode(
                 cell_size: p.cell_size,
                 vertical_scale: p.vertical_scale,
             };
-            Ok(Input::Dem(decode_dem(bytes, filename, &opts)?))
+            let dem = decode_dem(bytes, filename, &opts)?;
+            Ok(Job::SnowTerrain { params: p, dem })
+        }
+        Params::SnowCover(p) => {
+            let mesh = snow_cover::run::decode(bytes, filename, &p, limits)?;
+            Ok(Job::SnowCover { params: p, mesh })
         }
     }
 }
 
 /// Runs the pipeline to its named outputs.
-pub fn run(params: &Params, input: &Input, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
-    match (params, input) {
-        (Params::SnowTerrain(p), Input::Dem(dem)) => snow_terrain::run(dem, p, ctl),
+pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+    match job {
+        Job::SnowTerrain { params, dem } => snow_terrain::run(dem, params, ctl),
+        Job::SnowCover { params, mesh } => snow_cover::run(mesh, params, ctl),
     }
 }

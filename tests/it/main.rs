@@ -6,4 +6,5 @@ mod api;
 mod common;
 mod openapi;
 mod restart;
+mod snow_cover;
 mod snow_terrain;

@@ -6,7 +6,7 @@ use serde_json::{json, Value};
 
 use crate::common::{data, Server};
 
-fn spec() -> Value {
+pub(crate) fn spec() -> Value {
     let text =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/openapi.yaml")).unwrap();
     serde_yaml::from_str(&text).unwrap()
@@ -74,7 +74,7 @@ fn check(spec: &Value, method: &str, path: &str, status: u16, ctype: &str, body:
 }
 
 /// Reads a JSON response and validates it against the spec; returns the body.
-async fn checked(spec: &Value, method: &str, path: &str, r: reqwest::Response) -> Value {
+pub(crate) async fn checked(spec: &Value, method: &str, path: &str, r: reqwest::Response) -> Value {
     let ct = r.headers()["content-type"].to_str().unwrap().to_string();
     let status = r.status().as_u16();
     let body: Value = r.json().await.unwrap();
@@ -254,58 +254,53 @@ async fn responses_match_the_spec() {
 }
 
 #[test]
-fn every_snow_terrain_parameter_is_documented_with_its_default() {
-    // The resolved defaults the engine reports equal the spec's `default`s, and every parameter
-    // the engine accepts is in the spec (and vice versa).
+fn every_parameter_is_documented_with_its_default() {
+    // For each pipeline: the resolved defaults the engine reports equal the spec's `default`s,
+    // and every parameter the engine accepts is in the spec (and vice versa).
+    use phenomena_engine::pipeline::{Limits, Params, PipelineKind};
     let spec = spec();
-    let props = spec["components"]["schemas"]["SnowTerrainParams"]["properties"]
-        .as_object()
-        .unwrap();
-    let limits = phenomena_engine::pipeline::Limits::default();
-    let p = phenomena_engine::pipeline::Params::parse(
-        phenomena_engine::pipeline::PipelineKind::SnowTerrain,
-        &json!({}),
-        &limits,
-    )
-    .unwrap()
-    .canonical();
-    for (name, value) in p.as_object().unwrap() {
-        let prop = props
-            .get(name)
-            .unwrap_or_else(|| panic!("{name} is not in openapi.yaml"));
-        assert!(
-            prop.get("description").is_some(),
-            "{name} has no description"
-        );
-        if name == "camera" {
-            continue;
-        }
-        match prop.get("default") {
-            Some(d) => {
-                let (a, b) = (d.as_f64(), value.as_f64());
-                if let (Some(a), Some(b)) = (a, b) {
-                    assert!(
-                        (a - b).abs() <= 1e-6 * a.abs().max(1.0),
-                        "{name}: spec default {d}, engine {value}"
-                    );
-                } else {
-                    assert_eq!(d, value, "{name}");
-                }
-            }
-            None => assert!(
-                value.is_null()
-                    || ["smooth_radius", "tsa_window", "tsa_max", "probe_radius"]
-                        .contains(&name.as_str()),
-                "{name}: the engine's default {value} is not documented"
-            ),
-        }
-    }
-    for name in props.keys() {
-        if name != "sweep" {
+    for (kind, schema) in [
+        (PipelineKind::SnowTerrain, "SnowTerrainParams"),
+        (PipelineKind::SnowCover, "SnowCoverParams"),
+    ] {
+        let props = spec["components"]["schemas"][schema]["properties"]
+            .as_object()
+            .unwrap();
+        let p = Params::parse(kind, &json!({}), &Limits::default())
+            .unwrap()
+            .canonical();
+        for (name, value) in p.as_object().unwrap() {
+            let prop = props
+                .get(name)
+                .unwrap_or_else(|| panic!("{schema}.{name} is not in openapi.yaml"));
             assert!(
-                p.get(name).is_some(),
-                "{name} is in openapi.yaml but not accepted"
+                prop.get("description").is_some(),
+                "{schema}.{name} has no description"
             );
+            if name == "camera" {
+                continue;
+            }
+            match prop.get("default") {
+                Some(d) => match (d.as_f64(), value.as_f64()) {
+                    (Some(a), Some(b)) => assert!(
+                        (a - b).abs() <= 1e-6 * a.abs().max(1.0),
+                        "{schema}.{name}: spec default {d}, engine {value}"
+                    ),
+                    _ => assert_eq!(d, value, "{schema}.{name}"),
+                },
+                None => assert!(
+                    value.is_null(),
+                    "{schema}.{name}: the engine's default {value} is not documented"
+                ),
+            }
+        }
+        for name in props.keys() {
+            if name != "sweep" {
+                assert!(
+                    p.get(name).is_some(),
+                    "{schema}.{name} is in openapi.yaml but not accepted"
+                );
+            }
         }
     }
 }

@@ -11,6 +11,7 @@ pub mod maps;
 pub mod params;
 pub mod probability;
 pub mod region;
+pub mod run;
 pub mod settle;
 pub mod shadow;
 pub mod shape;
@@ -32,3 +33,6 @@ pub fn stabilize(
 ) -> Result<SettleReport, crate::Canceled> {
     Settler::new(maps).stabilize(maps, repose_deg, max_iterations, ctl)
 }
+
+pub use params::Params;
+pub use run::run;

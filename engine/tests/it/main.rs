@@ -10,5 +10,6 @@ mod mesh_formats;
 mod mesh_output;
 mod render;
 mod snow_cover;
+mod snow_cover_pipeline;
 mod snow_shape;
 mod snow_terrain;
