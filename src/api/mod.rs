@@ -89,16 +89,12 @@ async fn fallback(State(st): State<AppState>, req: Request) -> ApiError {
     ApiError::NotFound(format!("no route for {path}"))
 }
 
-async fn method_not_allowed(req: Request) -> Response {
-    use axum::response::IntoResponse;
-    let mut resp = ApiError::NotFound(format!(
+async fn method_not_allowed(req: Request) -> ApiError {
+    ApiError::MethodNotAllowed(format!(
         "{} is not allowed on {}",
         req.method(),
         req.uri().path()
     ))
-    .into_response();
-    *resp.status_mut() = axum::http::StatusCode::METHOD_NOT_ALLOWED;
-    resp
 }
 
 /// Counts requests and their latency by matched route.
