@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::render::camera::Camera;
 use crate::ParamError;
 
 /// How the camera is placed (SPEC §5, shared by every pipeline).
@@ -139,5 +140,43 @@ pub fn camera_spec(c: WireCamera, d: OrbitDefaults) -> Result<CameraSpec, ParamE
             },
             fov_deg,
         }),
+    }
+}
+
+impl CameraSpec {
+    /// The camera for a scene whose bounding box is `bounds` (world frame), rendered at `aspect`
+    /// (width / height). An orbit without `distance` frames the box's 8 corners within 92 % of
+    /// the image (far tighter than a bounding sphere for wide, flat scenes); with no bounds (an
+    /// empty scene) it orbits the origin.
+    pub fn camera(&self, bounds: Option<([f64; 3], [f64; 3])>, aspect: f64) -> Camera {
+        match *self {
+            CameraSpec::Orbit {
+                azimuth_deg,
+                elevation_deg,
+                distance,
+                fov_deg,
+            } => match (distance, bounds) {
+                (None, Some((lo, hi))) => {
+                    Camera::frame_box(lo, hi, azimuth_deg, elevation_deg, fov_deg, aspect)
+                }
+                (d, b) => {
+                    let center = b.map_or([0.0; 3], |(lo, hi)| {
+                        [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]))
+                    });
+                    let d = d.unwrap_or_else(|| Camera::auto_distance(1.0, fov_deg));
+                    Camera::orbit(center, azimuth_deg, elevation_deg, d, fov_deg)
+                }
+            },
+            CameraSpec::LookAt {
+                eye,
+                target,
+                fov_deg,
+            } => Camera {
+                eye,
+                target,
+                up: [0.0, 1.0, 0.0],
+                fov_deg,
+            },
+        }
     }
 }

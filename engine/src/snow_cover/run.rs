@@ -21,9 +21,7 @@ use crate::formats::mesh::{decode_mesh, sniff_mesh, MeshFormat, MeshOptions, UpA
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
-use crate::params::CameraSpec;
 use crate::pipeline::Limits;
-use crate::render::camera::Camera;
 use crate::render::image::RgbaImage;
 use crate::render::mesh::{render_meshes, MeshColors, MeshInstance, MeshLighting};
 use crate::render::terrain::sun_direction;
@@ -68,38 +66,6 @@ pub fn decode(
     Ok(mesh)
 }
 
-fn camera_for(spec: &CameraSpec, mesh: &Mesh, aspect: f64) -> Camera {
-    let (lo, hi) = mesh.bounds().unwrap_or(([0.0; 3], [1.0; 3]));
-    let (lo, hi) = (lo.map(f64::from), hi.map(f64::from));
-    match *spec {
-        CameraSpec::Orbit {
-            azimuth_deg,
-            elevation_deg,
-            distance: Some(d),
-            fov_deg,
-        } => {
-            let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-            Camera::orbit(center, azimuth_deg, elevation_deg, d, fov_deg)
-        }
-        CameraSpec::Orbit {
-            azimuth_deg,
-            elevation_deg,
-            distance: None,
-            fov_deg,
-        } => Camera::frame_box(lo, hi, azimuth_deg, elevation_deg, fov_deg, aspect),
-        CameraSpec::LookAt {
-            eye,
-            target,
-            fov_deg,
-        } => Camera {
-            eye,
-            target,
-            up: [0.0, 1.0, 0.0],
-            fov_deg,
-        },
-    }
-}
-
 fn lighting(p: &Params, mesh: &Mesh) -> MeshLighting {
     let diag = mesh
         .bounds()
@@ -136,7 +102,12 @@ fn render_scene(
         triangles: &s.triangles,
         colors: MeshColors::Uniform(SNOW),
     }));
-    let camera = camera_for(&p.camera, mesh, f64::from(width) / f64::from(height));
+    let bounds = mesh
+        .bounds()
+        .map(|(lo, hi)| (lo.map(f64::from), hi.map(f64::from)));
+    let camera = p
+        .camera
+        .camera(bounds, f64::from(width) / f64::from(height));
     render_meshes(
         &instances,
         &camera,

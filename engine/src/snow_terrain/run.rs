@@ -12,8 +12,7 @@ use crate::formats::geotiff_write::write_float32_geotiff;
 use crate::formats::glb::terrain_glb;
 use crate::formats::png_write::encode_rgba;
 use crate::geom::Dem;
-use crate::params::{parse_hex_color, CameraSpec};
-use crate::render::camera::Camera;
+use crate::params::parse_hex_color;
 use crate::render::image::RgbaImage;
 use crate::render::sheet::contact_sheet;
 use crate::render::terrain::{render_with, sun_direction, Lighting, TerrainAccel, TerrainScene};
@@ -22,45 +21,6 @@ use crate::{Canceled, Control, Output};
 /// Share of the job's progress spent before rendering starts.
 const DESCRIPTOR_END: f32 = 0.45;
 const RENDER_END: f32 = 0.85;
-
-/// The camera of `spec`. An orbit without `distance` frames the DEM's bounding box (its 8 corners
-/// within 92 % of the image), which fills the picture far better than a bounding sphere for
-/// wide, flat DEMs.
-fn camera_for(spec: &CameraSpec, scene: &TerrainScene, aspect: f64) -> Camera {
-    match *spec {
-        CameraSpec::Orbit {
-            azimuth_deg,
-            elevation_deg,
-            distance,
-            fov_deg,
-        } => {
-            let (center, radius) = scene.bounding_sphere();
-            match (distance, scene.bounds()) {
-                (Some(d), _) => Camera::orbit(center, azimuth_deg, elevation_deg, d, fov_deg),
-                (None, Some((lo, hi))) => {
-                    Camera::frame_box(lo, hi, azimuth_deg, elevation_deg, fov_deg, aspect)
-                }
-                (None, None) => Camera::orbit(
-                    center,
-                    azimuth_deg,
-                    elevation_deg,
-                    Camera::auto_distance(radius, fov_deg),
-                    fov_deg,
-                ),
-            }
-        }
-        CameraSpec::LookAt {
-            eye,
-            target,
-            fov_deg,
-        } => Camera {
-            eye,
-            target,
-            up: [0.0, 1.0, 0.0],
-            fov_deg,
-        },
-    }
-}
 
 fn lighting(p: &Params) -> Lighting {
     Lighting {
@@ -137,7 +97,9 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
         albedo: &colour,
     };
     let accel = TerrainAccel::new(&scene);
-    let camera = camera_for(&p.camera, &scene, f64::from(p.width) / f64::from(p.height));
+    let camera = p
+        .camera
+        .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
     let render_end = if p.sweep_runs.is_empty() {
         RENDER_END
     } else {
@@ -285,7 +247,9 @@ fn sweep_sheet(
             albedo: &colour,
         };
         let accel = TerrainAccel::new(&scene);
-        let camera = camera_for(&run.camera, &scene, f64::from(tw) / f64::from(th));
+        let camera = run
+            .camera
+            .camera(scene.bounds(), f64::from(tw) / f64::from(th));
         let img = render_with(&accel, &camera, &lighting(run), tw, th, ctl, (f1, f2))?;
         tiles.push((img, format!("{name} = {value}")));
     }
