@@ -180,3 +180,25 @@ impl CameraSpec {
         }
     }
 }
+
+/// Validates the output image size (`width`, `height`; each 16–8192, `default` when absent) against
+/// the output pixel limit.
+pub fn image_size(
+    width: Option<u32>,
+    height: Option<u32>,
+    default: (u32, u32),
+    limits: &crate::pipeline::Limits,
+) -> Result<(u32, u32), ParamError> {
+    let w = range("width", width, default.0, 16, 8192)?;
+    let h = range("height", height, default.1, 16, 8192)?;
+    if u64::from(w) * u64::from(h) > limits.max_output_pixels {
+        return Err(ParamError::new(
+            "width",
+            format!(
+                "{w}×{h} exceeds the output limit of {} pixels",
+                limits.max_output_pixels
+            ),
+        ));
+    }
+    Ok((w, h))
+}

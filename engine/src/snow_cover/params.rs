@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::probability::Wind;
 use super::snowfall::{ModelParams, Snowfall};
-use crate::params::{camera_spec, range, CameraSpec, OrbitDefaults, WireCamera};
+use crate::params::{camera_spec, image_size, range, CameraSpec, OrbitDefaults, WireCamera};
 use crate::pipeline::Limits;
 use crate::ParamError;
 
@@ -139,17 +139,7 @@ impl Params {
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
         let w: WireParams = crate::pipeline::deserialize_params(v)?;
-        let width = range("width", w.width, 960, 16, 8192)?;
-        let height = range("height", w.height, 640, 16, 8192)?;
-        if u64::from(width) * u64::from(height) > limits.max_output_pixels {
-            return Err(ParamError::new(
-                "width",
-                format!(
-                    "{width}×{height} exceeds the output limit of {} pixels",
-                    limits.max_output_pixels
-                ),
-            ));
-        }
+        let (width, height) = image_size(w.width, w.height, (960, 640), limits)?;
         let camera = camera_spec(
             w.camera.clone().unwrap_or_default(),
             OrbitDefaults {

@@ -5,7 +5,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::descriptor::DescriptorParams;
-use crate::params::{camera_spec, parse_hex_color, range, CameraSpec, OrbitDefaults, WireCamera};
+use crate::params::{
+    camera_spec, image_size, parse_hex_color, range, CameraSpec, OrbitDefaults, WireCamera,
+};
 use crate::pipeline::Limits;
 use crate::ParamError;
 
@@ -159,17 +161,7 @@ impl Params {
 
     fn from_wire(w: &WireParams, limits: &Limits) -> Result<Self, ParamError> {
         let d = DescriptorParams::default();
-        let width = range("width", w.width, 900, 16, 8192)?;
-        let height = range("height", w.height, 600, 16, 8192)?;
-        if u64::from(width) * u64::from(height) > limits.max_output_pixels {
-            return Err(ParamError::new(
-                "width",
-                format!(
-                    "{width}×{height} exceeds the output limit of {} pixels",
-                    limits.max_output_pixels
-                ),
-            ));
-        }
+        let (width, height) = image_size(w.width, w.height, (900, 600), limits)?;
         let camera = camera_spec(
             w.camera.clone().unwrap_or_default(),
             OrbitDefaults {

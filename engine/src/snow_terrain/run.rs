@@ -22,6 +22,18 @@ use crate::{Canceled, Control, Output};
 const DESCRIPTOR_END: f32 = 0.45;
 const RENDER_END: f32 = 0.85;
 
+/// The render scene of `dem` with these (exaggerated) heights and colours.
+fn scene_of<'a>(dem: &Dem, heights: &'a [f32], colour: &'a [[f32; 3]]) -> TerrainScene<'a> {
+    TerrainScene {
+        width: dem.width,
+        height: dem.height,
+        dx: dem.dx,
+        dy: dem.dy,
+        heights,
+        albedo: colour,
+    }
+}
+
 fn lighting(p: &Params) -> Lighting {
     Lighting {
         sun_dir: sun_direction(f64::from(p.descriptor.sun_azimuth_deg), p.sun_elevation_deg),
@@ -88,14 +100,7 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     lap("colour", t0);
 
     let t0 = Instant::now();
-    let scene = TerrainScene {
-        width: dem.width,
-        height: dem.height,
-        dx: dem.dx,
-        dy: dem.dy,
-        heights: &heights,
-        albedo: &colour,
-    };
+    let scene = scene_of(dem, &heights, &colour);
     let accel = TerrainAccel::new(&scene);
     let camera = p
         .camera
@@ -238,14 +243,7 @@ fn sweep_sheet(
         let d = descriptor::compute(dem, &run.descriptor, ctl, (f0, f1))?;
         let colour = colours(&d.t, run);
         let heights = world_heights(dem, run.descriptor.vertical_exaggeration);
-        let scene = TerrainScene {
-            width: dem.width,
-            height: dem.height,
-            dx: dem.dx,
-            dy: dem.dy,
-            heights: &heights,
-            albedo: &colour,
-        };
+        let scene = scene_of(dem, &heights, &colour);
         let accel = TerrainAccel::new(&scene);
         let camera = run
             .camera
