@@ -4,6 +4,7 @@
 //! input and validated parameters (plus a [`Control`] handle for progress and cancellation) to named
 //! [`Output`]s; the CLI and the server's workers call the same functions.
 
+pub mod cloud;
 pub mod control;
 pub mod error;
 pub mod formats;

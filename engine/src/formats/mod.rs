@@ -7,3 +7,4 @@ pub mod glb;
 pub mod mesh;
 pub mod mesh_glb;
 pub mod png_write;
+pub mod volume;

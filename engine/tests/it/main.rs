@@ -2,6 +2,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
 
+mod cloud;
+mod cloud_edit;
 mod descriptor;
 mod formats;
 mod gltf_validator;
@@ -9,6 +11,7 @@ mod golden;
 mod mesh_formats;
 mod mesh_output;
 mod render;
+mod volume_formats;
 mod snow_cover;
 mod snow_cover_pipeline;
 mod snow_shape;

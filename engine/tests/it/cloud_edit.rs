@@ -1,0 +1,1 @@
+//! Placeholder module; owned by the cloud_edit work.

@@ -1,0 +1,1 @@
+//! Placeholder module; owned by the volume_formats work.
