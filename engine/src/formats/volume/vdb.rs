@@ -232,8 +232,11 @@ fn read_descriptors(r: &mut Rd, version: u32) -> Result<Vec<GridInfo>, InputErro
     Ok(grids)
 }
 
+/// An axis-aligned index-to-world map: `(scale, translation)`.
+type ScaleTranslate = ([f64; 3], [f64; 3]);
+
 /// Voxel centre of index `ijk` is at `scale·ijk + translation`; `None` for rotations.
-fn read_transform(r: &mut Rd) -> Result<Option<([f64; 3], [f64; 3])>, InputError> {
+fn read_transform(r: &mut Rd) -> Result<Option<ScaleTranslate>, InputError> {
     let map = r.string()?;
     Ok(match map.as_str() {
         "UniformScaleMap" | "ScaleMap" => {
