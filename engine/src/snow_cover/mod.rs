@@ -7,6 +7,7 @@
 //! the time loop [`simulate`]), [`settle`] (§2.4.1 stabilization and §2.4.2 falling). Everything is
 //! deterministic for a seed and bit-identical for any number of rayon threads.
 
+mod coarse;
 pub mod maps;
 pub mod params;
 pub mod probability;

@@ -6,6 +6,7 @@ use phenomena_engine::{NoControl, Output};
 use serde_json::{json, Value};
 
 use crate::gltf_validator::validate_glb;
+use crate::golden::assert_golden;
 
 fn job(file: &str, params: Value) -> Job {
     let path = format!(
@@ -97,5 +98,51 @@ fn same_bytes_on_one_thread_and_two() {
                 a.name
             );
         }
+    }
+}
+
+fn decode_rgba(bytes: &[u8]) -> phenomena_engine::render::image::RgbaImage {
+    let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
+    dec.set_transformations(png::Transformations::EXPAND);
+    let mut reader = dec.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    phenomena_engine::render::image::RgbaImage {
+        width: info.width,
+        height: info.height,
+        data: buf,
+    }
+}
+
+/// Reference renders (STYLE habit 8) of two real meshes under snow, small maps and images so the
+/// test stays fast: the Inventor table (Z-up content in a GLB) and the teapot (OBJ). Tolerance: 3
+/// per channel (0–255), at most 0.5 % of the pixels beyond it (silhouette pixels can flip with
+/// FMA contraction). `BLESS=1` regenerates `tests/golden/snow-cover/*.png`; a diff image goes to
+/// `target/golden-diff/` on failure.
+#[test]
+fn golden_renders_of_real_meshes() {
+    let cases = [
+        (
+            "inventor_table",
+            "inventor_table.glb",
+            json!({"up_axis": "z", "resolution": 64, "directions": 8, "steps": 6,
+                   "width": 200, "height": 140}),
+        ),
+        (
+            "teapot",
+            "teapot_npm.obj",
+            json!({"resolution": 64, "directions": 8, "steps": 6, "width": 200, "height": 140}),
+        ),
+    ];
+    for (case, file, p) in cases {
+        let outs = pipeline::run(&job(file, p), &NoControl).unwrap();
+        assert_golden(
+            "snow-cover",
+            case,
+            &decode_rgba(output(&outs, "render.png")),
+            3,
+            0.005,
+        );
     }
 }
