@@ -1,0 +1,302 @@
+//! A cloud scene version's parameters (SPEC §3 "Editing": κ, sun direction, sun colour I_l,
+//! ambient) and the per-voxel ambient field I_m that the ambient edit (§3.2) produces.
+//!
+//! `CloudState` is what `state.json` holds; the ambient field is stored beside it as a blob
+//! ([`AmbientField::to_bytes`]). Colours are linear RGB; the background is an sRGB hex colour
+//! because it is what the user picks on screen.
+
+use serde::{Deserialize, Serialize};
+
+use crate::params::{parse_hex_color, range};
+use crate::render::terrain::sun_direction as sun_from_angles;
+use crate::{InputError, ParamError};
+
+/// The parameters of the rendering equation (paper Eqs. 1–3) for one version of a cloud scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CloudState {
+    /// Extinction κ per unit density per world unit (the box's longest side is 1 world unit by
+    /// default), 0–10,000. Default 120: chosen on the OpenVDB smoke sample (mean density 0.062,
+    /// 222 voxels tall), whose thin wisps then stay translucent and the core opaque.
+    pub kappa: f64,
+    /// Unit vector toward the sun, world frame (X east, Y up, Z south). Default: azimuth 150°,
+    /// elevation 35° (`sun_azimuth_deg`/`sun_elevation_deg` are accepted on the wire instead).
+    pub sun_direction: [f64; 3],
+    /// Sun colour I_l, linear RGB, each 0–100. Default `[1.0, 0.97, 0.92]` (warm white).
+    pub sun_color: [f64; 3],
+    /// Uniform ambient I_m, linear RGB, each 0–100, used wherever no ambient field exists.
+    /// Default `[0.25, 0.30, 0.40]` (blue sky light).
+    pub ambient: [f64; 3],
+    /// The user coefficient on the propagated ambient field (§3.2), 0–100. Multiplies the field
+    /// only, not the uniform `ambient`. Default 1.
+    pub ambient_scale: f64,
+    /// Henyey–Greenstein asymmetry g of the sun term, −0.99–0.99; 0 = isotropic (the paper).
+    /// Default 0.
+    pub anisotropy: f64,
+    /// Background colour `#rrggbb` (sRGB) to composite over; `null` keeps transparent sky.
+    /// Default null.
+    pub background: Option<String>,
+    /// Ray-march step in voxels (of the smallest voxel edge), 0.1–4. Default 0.5.
+    pub step: f64,
+}
+
+impl Default for CloudState {
+    fn default() -> Self {
+        Self {
+            kappa: 120.0,
+            sun_direction: sun_from_angles(150.0, 35.0),
+            sun_color: [1.0, 0.97, 0.92],
+            ambient: [0.25, 0.30, 0.40],
+            ambient_scale: 1.0,
+            anisotropy: 0.0,
+            background: None,
+            step: 0.5,
+        }
+    }
+}
+
+/// Wire form: every field optional; the sun may be given as angles instead of a vector.
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct WireState {
+    pub kappa: Option<f64>,
+    pub sun_direction: Option<[f64; 3]>,
+    pub sun_azimuth_deg: Option<f64>,
+    pub sun_elevation_deg: Option<f64>,
+    pub sun_color: Option<[f64; 3]>,
+    pub ambient: Option<[f64; 3]>,
+    pub ambient_scale: Option<f64>,
+    pub anisotropy: Option<f64>,
+    pub background: Option<String>,
+    pub step: Option<f64>,
+}
+
+/// The wire names [`CloudState::from_json`] accepts (the one-shot pipeline splits its
+/// parameters on these).
+pub(crate) const STATE_FIELDS: &[&str] = &[
+    "kappa",
+    "sun_direction",
+    "sun_azimuth_deg",
+    "sun_elevation_deg",
+    "sun_color",
+    "ambient",
+    "ambient_scale",
+    "anisotropy",
+    "background",
+    "step",
+];
+
+fn color3(field: &str, v: Option<[f64; 3]>, d: [f64; 3]) -> Result<[f64; 3], ParamError> {
+    let c = v.unwrap_or(d);
+    for (i, x) in c.iter().enumerate() {
+        range(&format!("{field}[{i}]"), Some(*x), 0.0, 0.0, 100.0)?;
+    }
+    Ok(c)
+}
+
+impl CloudState {
+    /// Validates partial wire JSON: missing fields take the defaults, unknown names, NaN and
+    /// out-of-range values are errors naming the field. `sun_direction` is normalised; it may be
+    /// replaced by `sun_azimuth_deg` (compass, 0–360) and `sun_elevation_deg` (−90–90), both
+    /// required together and not mixed with `sun_direction`.
+    pub fn from_json(v: &serde_json::Value) -> Result<Self, ParamError> {
+        let w: WireState = crate::pipeline::deserialize_params(v)?;
+        Self::from_wire(w)
+    }
+
+    pub(crate) fn from_wire(w: WireState) -> Result<Self, ParamError> {
+        let d = Self::default();
+        let sun_direction = match (w.sun_direction, w.sun_azimuth_deg, w.sun_elevation_deg) {
+            (Some(s), None, None) => {
+                let n = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+                if !(n.is_finite() && n > 1e-9) {
+                    return Err(ParamError::new(
+                        "sun_direction",
+                        "must be a finite, non-zero vector",
+                    ));
+                }
+                // Already unit (e.g. the canonical form read back): kept bit for bit.
+                if (n - 1.0).abs() < 1e-12 {
+                    s
+                } else {
+                    s.map(|x| x / n)
+                }
+            }
+            (None, None, None) => d.sun_direction,
+            (None, Some(az), Some(el)) => {
+                let az = range("sun_azimuth_deg", Some(az), 0.0, 0.0, 360.0)?;
+                let el = range("sun_elevation_deg", Some(el), 0.0, -90.0, 90.0)?;
+                sun_from_angles(az, el)
+            }
+            (Some(_), _, _) => {
+                return Err(ParamError::new(
+                    "sun_direction",
+                    "give either sun_direction or sun_azimuth_deg/sun_elevation_deg, not both",
+                ))
+            }
+            (None, None, Some(_)) => {
+                return Err(ParamError::new(
+                    "sun_azimuth_deg",
+                    "required with sun_elevation_deg",
+                ))
+            }
+            (None, Some(_), None) => {
+                return Err(ParamError::new(
+                    "sun_elevation_deg",
+                    "required with sun_azimuth_deg",
+                ))
+            }
+        };
+        let background = match w.background {
+            Some(s) => {
+                parse_hex_color("background", &s)?;
+                Some(s.to_ascii_lowercase())
+            }
+            None => None,
+        };
+        Ok(Self {
+            kappa: range("kappa", w.kappa, d.kappa, 0.0, 10_000.0)?,
+            sun_direction,
+            sun_color: color3("sun_color", w.sun_color, d.sun_color)?,
+            ambient: color3("ambient", w.ambient, d.ambient)?,
+            ambient_scale: range(
+                "ambient_scale",
+                w.ambient_scale,
+                d.ambient_scale,
+                0.0,
+                100.0,
+            )?,
+            anisotropy: range("anisotropy", w.anisotropy, d.anisotropy, -0.99, 0.99)?,
+            background,
+            step: range("step", w.step, d.step, 0.1, 4.0)?,
+        })
+    }
+
+    /// The background as sRGB bytes (validated when the state was built; `None` if absent).
+    pub fn background_srgb(&self) -> Option<[u8; 3]> {
+        self.background
+            .as_deref()
+            .and_then(|s| parse_hex_color("background", s).ok())
+    }
+
+    /// `state.json`: pretty JSON of the resolved state.
+    pub fn to_json_bytes(&self) -> Vec<u8> {
+        // Plain numbers and strings: serialisation cannot fail.
+        serde_json::to_vec_pretty(self).unwrap_or_default()
+    }
+}
+
+/// The per-voxel ambient colour I_m (SPEC §3.2): linear RGB, one entry per voxel in the
+/// volume's layout (x fastest). Produced by the ambient edit; the renderer multiplies it by
+/// [`CloudState::ambient_scale`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct AmbientField {
+    pub rgb: Vec<[f32; 3]>,
+}
+
+/// `PHAMB1\0\0` — the blob's magic.
+const AMBIENT_MAGIC: &[u8; 8] = b"PHAMB1\0\0";
+
+impl AmbientField {
+    /// The blob: 8-byte magic `PHAMB1\0\0`, the voxel count as little-endian u64, then
+    /// `3 × count` little-endian f32 (r, g, b per voxel). Allocates `16 + 12·count` bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(16 + 12 * self.rgb.len());
+        out.extend_from_slice(AMBIENT_MAGIC);
+        out.extend_from_slice(&(self.rgb.len() as u64).to_le_bytes());
+        for c in &self.rgb {
+            for v in c {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Reads a blob written by [`AmbientField::to_bytes`] for a volume of `voxels` voxels;
+    /// refuses a wrong magic, a count that differs from `voxels`, a wrong length and non-finite
+    /// or negative values.
+    pub fn from_bytes(bytes: &[u8], voxels: usize) -> Result<Self, InputError> {
+        let corrupt = |detail: String| InputError::Corrupt {
+            format: "ambient field",
+            detail,
+        };
+        if bytes.len() < 16 || &bytes[..8] != AMBIENT_MAGIC {
+            return Err(corrupt("missing the PHAMB1 header".into()));
+        }
+        let mut n8 = [0u8; 8];
+        n8.copy_from_slice(&bytes[8..16]);
+        let count = u64::from_le_bytes(n8);
+        if count != voxels as u64 {
+            return Err(InputError::Unusable(format!(
+                "the ambient field holds {count} voxels, the volume has {voxels}"
+            )));
+        }
+        let want = (voxels as u64)
+            .checked_mul(12)
+            .and_then(|b| b.checked_add(16))
+            .ok_or_else(|| corrupt("voxel count overflows".into()))?;
+        if bytes.len() as u64 != want {
+            return Err(corrupt(format!(
+                "{} bytes, {voxels} voxels need {want}",
+                bytes.len()
+            )));
+        }
+        let mut rgb = Vec::with_capacity(voxels);
+        for (i, ch) in bytes[16..].chunks_exact(12).enumerate() {
+            let f = |k: usize| f32::from_le_bytes([ch[k], ch[k + 1], ch[k + 2], ch[k + 3]]);
+            let c = [f(0), f(4), f(8)];
+            if c.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                return Err(corrupt(format!("voxel {i} has colour {c:?}")));
+            }
+            rgb.push(c);
+        }
+        Ok(Self { rgb })
+    }
+
+    /// A field of one colour.
+    pub fn uniform(voxels: usize, c: [f32; 3]) -> Self {
+        Self {
+            rgb: vec![c; voxels],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn state_defaults_round_trip_and_errors() {
+        let s = CloudState::from_json(&json!({})).unwrap();
+        assert_eq!(s, CloudState::default());
+        let back = CloudState::from_json(&serde_json::to_value(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
+        for (v, field) in [
+            (json!({"kappa": -1}), "kappa"),
+            (json!({"kapa": 1}), "kapa"),
+            (json!({"sun_direction": [0, 0, 0]}), "sun_direction"),
+            (json!({"sun_color": [1, -1, 0]}), "sun_color[1]"),
+            (json!({"anisotropy": 1.0}), "anisotropy"),
+            (json!({"background": "red"}), "background"),
+            (json!({"sun_azimuth_deg": 10}), "sun_elevation_deg"),
+        ] {
+            assert_eq!(CloudState::from_json(&v).unwrap_err().field, field, "{v}");
+        }
+        let a =
+            CloudState::from_json(&json!({"sun_azimuth_deg": 90, "sun_elevation_deg": 0})).unwrap();
+        assert!((a.sun_direction[0] - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn ambient_blob_round_trip_and_refusals() {
+        let f = AmbientField {
+            rgb: vec![[0.1, 0.2, 0.3], [1.0, 0.0, 2.5]],
+        };
+        let b = f.to_bytes();
+        assert_eq!(AmbientField::from_bytes(&b, 2).unwrap(), f);
+        assert!(AmbientField::from_bytes(&b, 3).is_err());
+        assert!(AmbientField::from_bytes(&b[..b.len() - 1], 2).is_err());
+        assert!(AmbientField::from_bytes(b"nonsense", 2).is_err());
+    }
+}
