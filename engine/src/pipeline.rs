@@ -374,7 +374,13 @@ pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
                         cloud::EditError::Canceled => RunFailure::Canceled,
                         other => RunFailure::Unprocessable(other.to_string()),
                     })?;
-            Ok(cloud::edit_outputs(volume, &outcome, &params.edit, ctl)?)
+            Ok(cloud::edit_outputs_with(
+                volume,
+                &outcome,
+                ambient.as_ref(),
+                &params.edit,
+                ctl,
+            )?)
         }
     }
 }
