@@ -6,14 +6,19 @@
 //! - [`light`]: the sun transmittance on the grid, once per light direction (slice sweep).
 //! - [`march`]: the camera-ray march of paper Eqs. 1–3, with the linear layers Ī and A.
 //! - [`params`], [`run`]: the one-shot `cloud` pipeline.
+//! - [`edit`]: sun colour from paint (§3.1), ambient from paint (§3.2, propagated by
+//!   [`multigrid`]), sun direction by dragging a shadow (§3.3).
 
+pub mod edit;
 pub mod grid;
 pub mod light;
 pub mod march;
+pub mod multigrid;
 pub mod params;
 pub mod run;
 pub mod state;
 
+pub use edit::{apply_edit, edit_outputs, edit_outputs_with, Edit, EditError, EditOutcome};
 pub use params::{Layer, Params, View};
 pub use run::run;
 pub use state::{AmbientField, CloudState};

@@ -212,10 +212,8 @@ fn field(h: &mut Header, key: &str, value: &str) -> Result<(), InputError> {
                 return Err(bad(key));
             }
         }
-        "line skip" | "lineskip" => {
-            if value != "0" {
-                return Err(unsupported("`line skip` is not supported"));
-            }
+        "line skip" | "lineskip" if value != "0" => {
+            return Err(unsupported("`line skip` is not supported"));
         }
         "data file" | "datafile" => {
             return Err(unsupported(format!(

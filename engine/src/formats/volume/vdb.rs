@@ -198,6 +198,12 @@ fn read_descriptors(r: &mut Rd, version: u32) -> Result<Vec<GridInfo>, InputErro
         }
         let parent = r.string()?;
         let (grid_pos, block_pos, end_pos) = (r.u64()?, r.u64()?, r.u64()?);
+        // Each descriptor must move forward, so `count` (up to 2³²) cannot loop over one spot.
+        if grid_pos < r.pos as u64 || block_pos < grid_pos || end_pos < block_pos {
+            return Err(corrupt(format!(
+                "grid offsets {grid_pos}, {block_pos}, {end_pos} are out of order"
+            )));
+        }
         r.seek(grid_pos)?;
         let compression = if version >= VERSION_NODE_MASK_COMPRESSION {
             r.u32()?
@@ -226,8 +232,11 @@ fn read_descriptors(r: &mut Rd, version: u32) -> Result<Vec<GridInfo>, InputErro
     Ok(grids)
 }
 
+/// An axis-aligned index-to-world map: `(scale, translation)`.
+type ScaleTranslate = ([f64; 3], [f64; 3]);
+
 /// Voxel centre of index `ijk` is at `scale·ijk + translation`; `None` for rotations.
-fn read_transform(r: &mut Rd) -> Result<Option<([f64; 3], [f64; 3])>, InputError> {
+fn read_transform(r: &mut Rd) -> Result<Option<ScaleTranslate>, InputError> {
     let map = r.string()?;
     Ok(match map.as_str() {
         "UniformScaleMap" | "ScaleMap" => {
@@ -390,6 +399,30 @@ struct Tile {
 struct Topology {
     leaves: Vec<Leaf>,
     tiles: Vec<Tile>,
+    /// Σ tile volumes; disjoint tiles of a valid tree sum to at most the dense box.
+    tile_voxels: u64,
+    max_voxels: u64,
+}
+
+impl Topology {
+    /// Record an active tile; refuses more tile voxels than `max_voxels` while the topology is
+    /// read, so a file of all-active masks cannot grow the tile list beyond what could be used.
+    fn tile(&mut self, origin: [i64; 3], size: i64, value: f32) -> Result<(), InputError> {
+        self.tile_voxels = self.tile_voxels.saturating_add((size as u64).pow(3));
+        if self.tile_voxels > self.max_voxels {
+            return Err(InputError::TooLarge {
+                what: "volume voxels (active OpenVDB tiles)",
+                actual: self.tile_voxels,
+                max: self.max_voxels,
+            });
+        }
+        self.tiles.push(Tile {
+            origin,
+            size,
+            value,
+        });
+        Ok(())
+    }
 }
 
 /// Child origin of offset `n` in an internal node of `log2` per axis whose children span
@@ -415,11 +448,11 @@ fn internal_topology(
     let value_mask = r.mask(count)?;
     let values = codec.values(r, count, &value_mask)?;
     for i in ones(&value_mask).filter(|&i| !bit(&child_mask, i)) {
-        topo.tiles.push(Tile {
-            origin: child_origin(origin, i, log2, child_total),
-            size: 1 << child_total,
-            value: values.get(i).copied().unwrap_or(codec.background),
-        });
+        topo.tile(
+            child_origin(origin, i, log2, child_total),
+            1 << child_total,
+            values.get(i).copied().unwrap_or(codec.background),
+        )?;
     }
     for i in ones(&child_mask) {
         let o = child_origin(origin, i, log2, child_total);
@@ -488,16 +521,15 @@ pub(super) fn decode(bytes: &[u8], opts: &VolumeOptions) -> Result<Decoded, Inpu
     };
     codec.background = codec.full(&mut r)?;
     let (num_tiles, num_children) = (r.u32()?, r.u32()?);
-    let mut topo = Topology::default();
+    let mut topo = Topology {
+        max_voxels: opts.max_voxels,
+        ..Topology::default()
+    };
     for _ in 0..num_tiles {
         let origin = r.coord()?;
         let value = codec.full(&mut r)?;
         if r.u8()? != 0 {
-            topo.tiles.push(Tile {
-                origin,
-                size: 4096,
-                value,
-            });
+            topo.tile(origin, 4096, value)?;
         }
     }
     // Children are read in file order; their buffers come in the root table's (sorted) order.
@@ -527,11 +559,7 @@ pub(super) fn decode(bytes: &[u8], opts: &VolumeOptions) -> Result<Decoded, Inpu
     let dims64: [u64; 3] = [0, 1, 2].map(|k| (hi[k] - lo[k] + 1) as u64);
     let n = check_voxels(dims64, opts.max_voxels)?;
     let dims = dims64.map(|d| d as usize);
-    let tile_voxels = topo
-        .tiles
-        .iter()
-        .fold(0u64, |acc, t| acc.saturating_add((t.size as u64).pow(3)));
-    if tile_voxels > n as u64 {
+    if topo.tile_voxels > n as u64 {
         return Err(corrupt("active tiles overlap"));
     }
 

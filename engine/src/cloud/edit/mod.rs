@@ -1,0 +1,349 @@
+//! The three editing modes of the paper (SPEC §3.1–3.3): each turns a gesture on a render into
+//! new rendering parameters, giving a new version of the cloud scene.
+//!
+//! - [`sun_color`]: paint → the least-squares sun colour I_l (§3.1, Eq. 6 generalised).
+//! - [`ambient`]: paint → pinned voxels → a propagated per-voxel ambient field (§3.2).
+//! - [`sun_direction`]: drag a shadow from P' to Q' → a new sun direction (§3.3).
+//!
+//! Every edit carries the view it was made in (image size and camera, the same wire shape as
+//! the pipeline's), and pixel coordinates are `[x, y]` integers from the top-left, checked to
+//! lie inside that image.
+
+pub mod ambient;
+pub mod sun_color;
+pub mod sun_direction;
+
+use serde::Deserialize;
+
+use super::light::SunLight;
+use super::params::View;
+use super::run::{render, render_png, state_json};
+use super::state::{AmbientField, CloudState};
+use crate::geom::Volume;
+use crate::params::{parse_hex_color, WireCamera};
+use crate::pipeline::Limits;
+use crate::render::image::srgb_to_linear;
+use crate::{Canceled, Control, Output, ParamError};
+
+/// Most painted pixels one edit may carry: a full-HD stroke set is far below this, and marching
+/// 100,000 rays stays well under a second.
+pub const MAX_STROKE_PIXELS: usize = 100_000;
+
+/// One stroke: a colour (linear RGB, converted from the sRGB the user picked) and its pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stroke {
+    pub color: [f32; 3],
+    pub pixels: Vec<[u32; 2]>,
+}
+
+/// Sun colour from paint (§3.1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SunColorEdit {
+    pub view: View,
+    pub strokes: Vec<Stroke>,
+}
+
+/// Ambient from paint (§3.2).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AmbientEdit {
+    pub view: View,
+    pub strokes: Vec<Stroke>,
+    /// New `ambient_scale` for the version, 0–100; absent = keep the base's.
+    pub ambient_scale: Option<f64>,
+}
+
+/// Sun direction by dragging a shadow (§3.3): from P' to Q'.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SunDirectionEdit {
+    pub view: View,
+    pub from: [u32; 2],
+    pub to: [u32; 2],
+}
+
+/// An edit of a cloud scene version.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Edit {
+    SunColor(SunColorEdit),
+    Ambient(AmbientEdit),
+    SunDirection(SunDirectionEdit),
+}
+
+/// The new version an edit produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EditOutcome {
+    pub state: CloudState,
+    /// Some when the edit produced a new ambient field (the ambient edit); None keeps the base's.
+    pub ambient: Option<AmbientField>,
+}
+
+/// Why an edit could not be applied.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EditError {
+    #[error("canceled")]
+    Canceled,
+    /// The drag's start pixel sees no cloud.
+    #[error("the drag starts on empty sky: no cloud under pixel ({0}, {1})")]
+    DragStartsOnSky(u32, u32),
+    /// The drag's end pixel sees no cloud.
+    #[error("the drag ends on empty sky: no cloud under pixel ({0}, {1})")]
+    DragEndsOnSky(u32, u32),
+    /// R and Q are the same voxel: no direction.
+    #[error("the drag does not move the shadow: the occluder and the target are the same voxel")]
+    DragTooShort,
+    /// No painted pixel sees the cloud (or, for the sun colour, none is lit by the sun).
+    #[error("no painted pixel covers the cloud")]
+    NoCover,
+    /// The stored ambient field does not fit the volume.
+    #[error("{0}")]
+    Unusable(String),
+}
+
+impl From<Canceled> for EditError {
+    fn from(_: Canceled) -> Self {
+        EditError::Canceled
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum WireColor {
+    Hex(String),
+    Rgb([f64; 3]),
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WireStroke {
+    color: WireColor,
+    pixels: Vec<[u32; 2]>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WirePaint {
+    width: Option<u32>,
+    height: Option<u32>,
+    camera: Option<WireCamera>,
+    strokes: Vec<WireStroke>,
+    ambient_scale: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WireDrag {
+    width: Option<u32>,
+    height: Option<u32>,
+    camera: Option<WireCamera>,
+    from: [u32; 2],
+    to: [u32; 2],
+}
+
+fn pixel_inside(field: &str, p: [u32; 2], view: &View) -> Result<(), ParamError> {
+    if p[0] >= view.width || p[1] >= view.height {
+        return Err(ParamError::new(
+            field,
+            format!(
+                "pixel ({}, {}) is outside the {}×{} image",
+                p[0], p[1], view.width, view.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Strokes: colours `"#rrggbb"` or `[r, g, b]` sRGB components in 0–1 (as a colour picker
+/// gives them), converted to linear; at most [`MAX_STROKE_PIXELS`] pixels in all, at least one.
+fn strokes(w: Vec<WireStroke>, view: &View) -> Result<Vec<Stroke>, ParamError> {
+    let total: usize = w.iter().map(|s| s.pixels.len()).sum();
+    if total == 0 {
+        return Err(ParamError::new("strokes", "paint at least one pixel"));
+    }
+    if total > MAX_STROKE_PIXELS {
+        return Err(ParamError::new(
+            "strokes",
+            format!("{total} painted pixels, at most {MAX_STROKE_PIXELS}"),
+        ));
+    }
+    let mut out = Vec::with_capacity(w.len());
+    for (i, s) in w.into_iter().enumerate() {
+        let field = format!("strokes[{i}].color");
+        let srgb: [f32; 3] = match &s.color {
+            WireColor::Hex(h) => parse_hex_color(&field, h)?.map(|b| f32::from(b) / 255.0),
+            WireColor::Rgb(c) => {
+                let mut o = [0f32; 3];
+                for (k, v) in c.iter().enumerate() {
+                    o[k] = crate::params::range(&format!("{field}[{k}]"), Some(*v), 0.0, 0.0, 1.0)?
+                        as f32;
+                }
+                o
+            }
+        };
+        for (j, p) in s.pixels.iter().enumerate() {
+            pixel_inside(&format!("strokes[{i}].pixels[{j}]"), *p, view)?;
+        }
+        out.push(Stroke {
+            color: srgb.map(srgb_to_linear),
+            pixels: s.pixels,
+        });
+    }
+    Ok(out)
+}
+
+impl Edit {
+    /// Validates an edit's wire JSON; `kind` is `"sun-color"`, `"ambient"` or `"sun-direction"`.
+    pub fn from_json(
+        kind: &str,
+        v: &serde_json::Value,
+        limits: &Limits,
+    ) -> Result<Self, ParamError> {
+        match kind {
+            "sun-color" | "ambient" => {
+                let w: WirePaint = crate::pipeline::deserialize_params(v)?;
+                let view = View::from_wire(w.width, w.height, w.camera, limits)?;
+                let strokes = strokes(w.strokes, &view)?;
+                if kind == "sun-color" {
+                    if w.ambient_scale.is_some() {
+                        return Err(ParamError::new(
+                            "ambient_scale",
+                            "only the ambient edit takes ambient_scale",
+                        ));
+                    }
+                    Ok(Edit::SunColor(SunColorEdit { view, strokes }))
+                } else {
+                    let ambient_scale = match w.ambient_scale {
+                        Some(s) => Some(crate::params::range(
+                            "ambient_scale",
+                            Some(s),
+                            1.0,
+                            0.0,
+                            100.0,
+                        )?),
+                        None => None,
+                    };
+                    Ok(Edit::Ambient(AmbientEdit {
+                        view,
+                        strokes,
+                        ambient_scale,
+                    }))
+                }
+            }
+            "sun-direction" => {
+                let w: WireDrag = crate::pipeline::deserialize_params(v)?;
+                let view = View::from_wire(w.width, w.height, w.camera, limits)?;
+                pixel_inside("from", w.from, &view)?;
+                pixel_inside("to", w.to, &view)?;
+                Ok(Edit::SunDirection(SunDirectionEdit {
+                    view,
+                    from: w.from,
+                    to: w.to,
+                }))
+            }
+            other => Err(ParamError::new(
+                "kind",
+                format!("unknown edit {other:?}; expected sun-color, ambient or sun-direction"),
+            )),
+        }
+    }
+
+    /// The view the edit was made in.
+    pub fn view(&self) -> &View {
+        match self {
+            Edit::SunColor(e) => &e.view,
+            Edit::Ambient(e) => &e.view,
+            Edit::SunDirection(e) => &e.view,
+        }
+    }
+}
+
+/// Applies `edit` to the version (`base`, `ambient`) of the scene on `volume`.
+pub fn apply_edit(
+    volume: &Volume,
+    base: &CloudState,
+    ambient: Option<&AmbientField>,
+    edit: &Edit,
+    ctl: &dyn Control,
+) -> Result<EditOutcome, EditError> {
+    if let Some(f) = ambient {
+        if f.rgb.len() != volume.len() {
+            return Err(EditError::Unusable(format!(
+                "the ambient field holds {} voxels, the volume has {}",
+                f.rgb.len(),
+                volume.len()
+            )));
+        }
+    }
+    match edit {
+        Edit::SunColor(e) => {
+            ctl.progress("light", 0.0);
+            let light = SunLight::compute(volume, base.sun_direction, base.kappa, ctl)?;
+            ctl.progress("sun-color", 0.5);
+            let sun = sun_color::estimate(volume, &light, base, ambient, e)?;
+            Ok(EditOutcome {
+                state: CloudState {
+                    sun_color: sun,
+                    ..base.clone()
+                },
+                ambient: None,
+            })
+        }
+        Edit::SunDirection(e) => {
+            let dir = sun_direction::drag(volume, base, e)?;
+            Ok(EditOutcome {
+                state: CloudState {
+                    sun_direction: dir.direction,
+                    ..base.clone()
+                },
+                ambient: None,
+            })
+        }
+        Edit::Ambient(e) => {
+            ctl.progress("light", 0.0);
+            let light = SunLight::compute(volume, base.sun_direction, base.kappa, ctl)?;
+            ctl.progress("ambient", 0.2);
+            let (field, _) = ambient::propagate_paint(volume, &light, e, ctl)?;
+            Ok(EditOutcome {
+                state: CloudState {
+                    ambient_scale: e.ambient_scale.unwrap_or(base.ambient_scale),
+                    ..base.clone()
+                },
+                ambient: Some(field),
+            })
+        }
+    }
+}
+
+/// The new version's outputs: `state.json`, `ambient.bin` (when the edit made a new field) and
+/// `render.png` at the edit's view. The render uses the outcome's field only; when the edit kept
+/// the base version's field (sun colour, sun direction) call [`edit_outputs_with`] and pass it,
+/// or the render shows uniform ambient.
+pub fn edit_outputs(
+    volume: &Volume,
+    outcome: &EditOutcome,
+    edit: &Edit,
+    ctl: &dyn Control,
+) -> Result<Vec<Output>, Canceled> {
+    edit_outputs_with(volume, outcome, None, edit, ctl)
+}
+
+/// [`edit_outputs`] with the base version's ambient field, used for the render when the edit
+/// did not make a new one.
+pub fn edit_outputs_with(
+    volume: &Volume,
+    outcome: &EditOutcome,
+    base_ambient: Option<&AmbientField>,
+    edit: &Edit,
+    ctl: &dyn Control,
+) -> Result<Vec<Output>, Canceled> {
+    let field = outcome.ambient.as_ref().or(base_ambient);
+    let layers = render(volume, &outcome.state, field, edit.view(), ctl)?;
+    let mut out = vec![state_json(&outcome.state)];
+    if let Some(f) = &outcome.ambient {
+        out.push(Output::new(
+            "ambient.bin",
+            "application/octet-stream",
+            f.to_bytes(),
+        ));
+    }
+    out.push(render_png(&layers, &outcome.state));
+    Ok(out)
+}

@@ -1,0 +1,84 @@
+//! Sun colour from paint (SPEC §3.1, paper Eqs. 4–6).
+//!
+//! The user paints pixels k with colours I_user(k) on a render. The cloud's radiance is linear in
+//! the sun colour, I(k,λ) = I_l(λ)·Ī(k) + A(k,λ), so the least-squares sun colour is
+//! `I_l(λ) = Σ_k Ī(k)(I_target(k,λ) − A(k,λ)) / Σ_k Ī(k)²` — the paper's Eq. 6 when there is one
+//! colour and no ambient. Only the painted pixels' rays are marched.
+//!
+//! Reading chosen for alpha and background: the user paints the colour they *see*. With a
+//! `background` the displayed colour is `I + (1 − α)·bg`, so the target for I is
+//! `I_user − (1 − α)·bg` (with a black background this is I_user and Eq. 6 holds exactly).
+//! Without one the PNG holds the straight colour I/α, so the target is `α·I_user`: the residual
+//! is measured on premultiplied radiance and thin, barely visible pixels weigh little. Paint
+//! colours are sRGB converted to linear. The result is clamped to the state's range 0–100 per
+//! channel (a negative least-squares solution means the paint is darker than the ambient alone).
+
+use rayon::prelude::*;
+
+use super::{EditError, SunColorEdit};
+use crate::cloud::light::SunLight;
+use crate::cloud::march::{PixelSample, Prepared};
+use crate::cloud::state::{AmbientField, CloudState};
+use crate::geom::Volume;
+use crate::render::image::srgb8_to_linear;
+
+/// The painted samples' marches, in stroke order: (colour, Ī, A, α).
+pub fn painted_samples(
+    prepared: &Prepared,
+    volume: &Volume,
+    edit: &SunColorEdit,
+) -> Vec<([f32; 3], PixelSample)> {
+    let camera = edit.view.camera(volume.bounds);
+    let rg = camera.ray_gen(edit.view.width, edit.view.height);
+    let jobs: Vec<([f32; 3], [u32; 2])> = edit
+        .strokes
+        .iter()
+        .flat_map(|s| s.pixels.iter().map(move |p| (s.color, *p)))
+        .collect();
+    jobs.par_iter()
+        .map(|(c, p)| {
+            let d = rg.dir(f64::from(p[0]) + 0.5, f64::from(p[1]) + 0.5);
+            (*c, prepared.march(rg.eye, d))
+        })
+        .collect()
+}
+
+/// Least-squares I_l from the painted samples (see the module doc). `NoCover` when no painted
+/// pixel receives direct light (Σ Ī² = 0).
+pub fn solve(
+    samples: &[([f32; 3], PixelSample)],
+    background: Option<[u8; 3]>,
+) -> Result<[f64; 3], EditError> {
+    let bg = background.map(|b| b.map(srgb8_to_linear));
+    let mut num = [0f64; 3];
+    let mut den = 0f64;
+    for (c, s) in samples {
+        let alpha = f64::from(1.0 - s.transmittance);
+        let d = f64::from(s.direct);
+        for q in 0..3 {
+            let target = match bg {
+                Some(bg) => f64::from(c[q]) - (1.0 - alpha) * f64::from(bg[q]),
+                None => alpha * f64::from(c[q]),
+            };
+            num[q] += d * (target - f64::from(s.ambient[q]));
+        }
+        den += d * d;
+    }
+    if den <= 1e-20 {
+        return Err(EditError::NoCover);
+    }
+    Ok(num.map(|n| (n / den).clamp(0.0, 100.0)))
+}
+
+/// Marches the painted pixels and solves for the sun colour.
+pub fn estimate(
+    volume: &Volume,
+    light: &SunLight,
+    base: &CloudState,
+    ambient: Option<&AmbientField>,
+    edit: &SunColorEdit,
+) -> Result<[f64; 3], EditError> {
+    let prepared = Prepared::new(volume, light, base, ambient);
+    let samples = painted_samples(&prepared, volume, edit);
+    solve(&samples, base.background_srgb())
+}
