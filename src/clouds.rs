@@ -82,6 +82,15 @@ impl SceneRecord {
             .filter(|v| v.version == n)
     }
 
+    /// The newest version that has not failed (it may still be pending): what an edit or render
+    /// without an explicit version starts from, so successive edits chain.
+    pub fn latest(&self) -> Option<&VersionRecord> {
+        self.versions
+            .iter()
+            .rev()
+            .find(|v| v.status != VersionStatus::Failed)
+    }
+
     /// The newest ready version.
     pub fn latest_ready(&self) -> Option<&VersionRecord> {
         self.versions

@@ -196,9 +196,9 @@ impl Params {
             PipelineKind::Cloud => Ok(Params::Cloud(Box::new(cloud::Params::from_json(
                 v, limits,
             )?))),
-            PipelineKind::CloudEdit => Ok(Params::CloudEdit(Box::new(
-                CloudEditParams::from_json(v, limits)?,
-            ))),
+            PipelineKind::CloudEdit => Ok(Params::CloudEdit(Box::new(CloudEditParams::from_json(
+                v, limits,
+            )?))),
         }
     }
 

@@ -16,8 +16,7 @@ use serde_json::{Map, Value};
 
 use super::jobs::prefer_wait;
 use super::submit::{
-    blocking_err, input_bytes, queue_job, read_body, request_key, respond, store_input,
-    touch_asset,
+    blocking_err, input_bytes, queue_job, read_body, request_key, respond, store_input, touch_asset,
 };
 use super::AppState;
 use crate::clouds::{is_scene_id, SceneError, SceneRecord, VersionRecord, VersionStatus};
@@ -73,7 +72,7 @@ pub struct SceneView {
     pub volume: InputRef,
     pub input: Map<String, Value>,
     pub info: Value,
-    /// The newest ready version (what a render or edit uses by default).
+    /// The newest ready version.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub latest_version: Option<u32>,
     pub versions: Vec<VersionView>,
@@ -232,8 +231,8 @@ fn take_version(body: &mut Map<String, Value>, field: &str) -> Result<Option<u32
     }
 }
 
-/// The version to use: `n`, or the newest ready one; a pending version is waited for (up to
-/// [`BASE_WAIT`]) and a failed one refused.
+/// The version to use: `n`, or the newest one that has not failed; a pending version is waited
+/// for (up to [`BASE_WAIT`]) and a failed one refused.
 async fn ready_version(
     st: &AppState,
     id: &str,
@@ -243,7 +242,7 @@ async fn ready_version(
     let scene = settled(st, id).await?;
     let pick = |s: &SceneRecord| match n {
         Some(n) => s.version(n).cloned(),
-        None => s.latest_ready().cloned(),
+        None => s.latest().cloned(),
     };
     let mut v = pick(&scene).ok_or_else(|| {
         ApiError::InvalidParameter(ParamError::new(
@@ -315,13 +314,17 @@ async fn read_json(st: &AppState, req: Request) -> Result<Map<String, Value>, Ap
     if !body.is_empty() && !ctype.starts_with("application/json") {
         return Err(ApiError::UnsupportedMediaType(format!(
             "send application/json; got {:?}",
-            if ctype.is_empty() { "no Content-Type" } else { ctype.as_str() }
+            if ctype.is_empty() {
+                "no Content-Type"
+            } else {
+                ctype.as_str()
+            }
         )));
     }
     json_body(&body)
 }
 
-/// `POST /v1/clouds/{id}/renders`: renders a version (default: the newest ready one) with a view
+/// `POST /v1/clouds/{id}/renders`: renders a version (default: the newest one) with a view
 /// (`width`, `height`, `camera`, `layers`) as a `cloud` job.
 pub async fn render(
     State(st): State<AppState>,
@@ -376,7 +379,7 @@ fn edit_field(e: ParamError) -> ApiError {
 }
 
 /// `POST /v1/clouds/{id}/edits/{kind}`: applies an edit to `base_version` (default: the newest
-/// ready one) as a `cloud-edit` job; answers 202 with the new, pending version (200 when
+/// version that has not failed) as a `cloud-edit` job; answers 202 with the new, pending version (200 when
 /// `Prefer: wait` saw it settle).
 pub async fn edit(
     State(st): State<AppState>,
@@ -428,10 +431,7 @@ pub async fn edit(
         st.jobs.wait(&job.id, wait).await;
     }
     let scene = settled(&st, &id).await?;
-    let v = scene
-        .version(version.version)
-        .cloned()
-        .unwrap_or(version);
+    let v = scene.version(version.version).cloned().unwrap_or(version);
     let status = if v.status == VersionStatus::Pending {
         StatusCode::ACCEPTED
     } else {
@@ -439,7 +439,11 @@ pub async fn edit(
     };
     let view = VersionView::from(v);
     let mut resp = (status, Json(&view)).into_response();
-    if let Some(u) = view.job_url.as_ref().and_then(|u| HeaderValue::from_str(u).ok()) {
+    if let Some(u) = view
+        .job_url
+        .as_ref()
+        .and_then(|u| HeaderValue::from_str(u).ok())
+    {
         resp.headers_mut().insert(header::LOCATION, u);
     }
     Ok(resp)

@@ -24,7 +24,9 @@ use tokio::sync::{watch, Notify};
 use crate::metrics::Metrics;
 use crate::pipelines::PipelineSet;
 use crate::store::{Store, StoreError};
-pub use record::{AuxInput, InputRef, JobError, JobRecord, OutputRecord, Snapshot, StageTiming, Status};
+pub use record::{
+    AuxInput, InputRef, JobError, JobRecord, OutputRecord, Snapshot, StageTiming, Status,
+};
 
 /// What other parts of the service need to know about jobs: resources built from job outputs
 /// (cloud scene versions) learn when a job finishes and keep their blobs from the sweeper.

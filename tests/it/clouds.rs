@@ -200,7 +200,8 @@ async fn a_whole_edit_session_over_http() {
 
     // Undo to version 2 and render it from a new camera; the same state through the one-shot
     // pipeline gives the same bytes, and version 4 looks different.
-    let new_view = json!({"width": 80, "height": 64, "camera": {"azimuth_deg": 120, "elevation_deg": 25}});
+    let new_view =
+        json!({"width": 80, "height": 64, "camera": {"azimuth_deg": 120, "elevation_deg": 25}});
     let mut body = new_view.clone();
     body["version"] = json!(2);
     let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), body).await;
@@ -218,7 +219,9 @@ async fn a_whole_edit_session_over_http() {
     let r = s
         .submit("cloud", "volume", one_shot, blob_npy(), "blob.npy")
         .await;
-    let job = s.wait_done(r.json::<Value>().await.unwrap()["id"].as_str().unwrap()).await;
+    let job = s
+        .wait_done(r.json::<Value>().await.unwrap()["id"].as_str().unwrap())
+        .await;
     assert_eq!(render_of(&s, &job).await, v2_render);
 
     let mut body = new_view.clone();
@@ -231,8 +234,14 @@ async fn a_whole_edit_session_over_http() {
     let mut body = with_view(json!({"strokes": [{"color": "#ffffff", "pixels": block(cx, cy)}]}));
     body["base_version"] = json!(2);
     let v = edit(&s, &spec, &id, "sun-color", body).await;
-    assert_eq!((v["version"].as_u64(), v["parent"].as_u64()), (Some(5), Some(2)));
-    assert!(v.get("ambient_field").is_none(), "version 2 had no field: {v}");
+    assert_eq!(
+        (v["version"].as_u64(), v["parent"].as_u64()),
+        (Some(5), Some(2))
+    );
+    assert!(
+        v.get("ambient_field").is_none(),
+        "version 2 had no field: {v}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -253,12 +262,25 @@ async fn bad_edits_and_scenes_are_clear_errors() {
         .to_string();
 
     // Unknown scene, unknown mode, unknown version, bad stroke.
-    let r = post_json(&s, &format!("/v1/clouds/{}/renders", "0".repeat(32)), json!({})).await;
+    let r = post_json(
+        &s,
+        &format!("/v1/clouds/{}/renders", "0".repeat(32)),
+        json!({}),
+    )
+    .await;
     problem(r, 404, "not-found").await;
     let r = post_json(&s, &format!("/v1/clouds/{id}/edits/wind"), json!({})).await;
     problem(r, 404, "not-found").await;
-    let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), json!({"version": 9})).await;
-    assert_eq!(problem(r, 422, "invalid-parameter").await["field"], "version");
+    let r = post_json(
+        &s,
+        &format!("/v1/clouds/{id}/renders"),
+        json!({"version": 9}),
+    )
+    .await;
+    assert_eq!(
+        problem(r, 422, "invalid-parameter").await["field"],
+        "version"
+    );
     let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), json!({"kappa": 3})).await;
     assert_eq!(problem(r, 422, "invalid-parameter").await["field"], "kappa");
     let r = post_json(
@@ -268,10 +290,7 @@ async fn bad_edits_and_scenes_are_clear_errors() {
     )
     .await;
     let p = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
-    assert!(
-        p["field"].as_str().unwrap().starts_with("strokes"),
-        "{p}"
-    );
+    assert!(p["field"].as_str().unwrap().starts_with("strokes"), "{p}");
 
     // A drag that starts on empty sky: the version fails with the reason.
     let r = post_json(
@@ -287,10 +306,24 @@ async fn bad_edits_and_scenes_are_clear_errors() {
     let r = post_json(
         &s,
         &format!("/v1/clouds/{id}/edits/sun-color"),
-        with_view(json!({"base_version": 2, "strokes": [{"color": "#ffffff", "pixels": [[48, 36]]}]})),
+        with_view(
+            json!({"base_version": 2, "strokes": [{"color": "#ffffff", "pixels": [[48, 36]]}]}),
+        ),
     )
     .await;
     problem(r, 409, "conflict").await;
+    let r = post_json(
+        &s,
+        &format!("/v1/clouds/{id}/edits/sun-color"),
+        with_view(json!({"strokes": [{"color": "#ffffff", "pixels": block(48, 36)}]})),
+    )
+    .await;
+    let v = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    assert_eq!(
+        (v["version"].as_u64(), v["parent"].as_u64()),
+        (Some(3), Some(1)),
+        "{v}"
+    );
 
     // Delete.
     let r = s
