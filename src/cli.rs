@@ -58,6 +58,8 @@ pub enum CliError {
     Input(#[from] phenomena_engine::InputError),
     #[error("canceled")]
     Canceled,
+    #[error("{0}")]
+    Unprocessable(String),
     #[error("cannot build the thread pool: {0}")]
     Pool(#[from] rayon::ThreadPoolBuildError),
 }
@@ -171,6 +173,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         Err(RunError::Canceled) => return Err(CliError::Canceled),
         Err(RunError::Input(e)) => return Err(e.into()),
         Err(RunError::Param(e)) => return Err(e.into()),
+        Err(RunError::Unprocessable(m)) => return Err(CliError::Unprocessable(m)),
     };
     std::fs::create_dir_all(&args.out).map_err(|source| CliError::Io {
         path: args.out.clone(),

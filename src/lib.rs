@@ -5,6 +5,7 @@
 
 pub mod api;
 pub mod cli;
+pub mod clouds;
 pub mod config;
 pub mod error;
 pub mod jobs;
@@ -19,6 +20,7 @@ use std::time::Duration;
 pub use api::{app, AppState};
 use tokio_util::sync::CancellationToken;
 
+use crate::clouds::Scenes;
 use crate::config::Config;
 use crate::jobs::Jobs;
 use crate::metrics::Metrics;
@@ -46,7 +48,20 @@ pub fn state(cfg: Config) -> Result<AppState, StartError> {
 pub fn state_with(cfg: Config, pipelines: Arc<dyn PipelineSet>) -> Result<AppState, StartError> {
     let store = Store::open(&cfg.data_dir)?;
     let metrics = Metrics::new()?;
-    let jobs = Jobs::start(store, pipelines, cfg.jobs(), metrics.clone())?;
+    let clouds = Scenes::open(store.clone())?;
+    let jobs = Jobs::start(
+        store,
+        pipelines,
+        Arc::new(clouds.clone()),
+        cfg.jobs(),
+        metrics.clone(),
+    )?;
+    // Versions whose job ended while the process was down (or just before a crash).
+    for id in clouds.pending_jobs(None) {
+        if let Some(rec) = jobs.get(&id) {
+            clouds.resolve(&rec)?;
+        }
+    }
     // Fill the store-size gauge once at start; the sweeper refreshes it.
     metrics
         .store_bytes
@@ -54,6 +69,7 @@ pub fn state_with(cfg: Config, pipelines: Arc<dyn PipelineSet>) -> Result<AppSta
     Ok(AppState {
         cfg: Arc::new(cfg),
         jobs,
+        clouds,
         metrics,
         shutdown: CancellationToken::new(),
     })

@@ -2,7 +2,7 @@
 //! run. The shipped set is [`EnginePipelines`]; tests may build the server with their own set (for
 //! example a pipeline that sleeps in stages) to exercise the job mechanics.
 
-use phenomena_engine::pipeline::{self, Limits, PipelineKind};
+use phenomena_engine::pipeline::{self, Limits, PipelineKind, RunFailure};
 use phenomena_engine::{Canceled, Control, InputError, Output, ParamError};
 
 /// Why a run produced no outputs.
@@ -15,6 +15,10 @@ pub enum RunError {
     Input(#[from] InputError),
     #[error(transparent)]
     Param(#[from] ParamError),
+    /// The pipeline ran but cannot produce what was asked (a cloud edit whose drag starts on empty
+    /// sky); the message is for the user.
+    #[error("{0}")]
+    Unprocessable(String),
 }
 
 impl From<Canceled> for RunError {
@@ -53,6 +57,31 @@ pub trait PipelineSet: Send + Sync + 'static {
         filename: Option<&str>,
         ctl: &dyn Control,
     ) -> Result<Vec<Output>, RunError>;
+    /// Like [`PipelineSet::run`] with the job's named auxiliary inputs (name, bytes); pipelines
+    /// that take none ignore them.
+    fn run_with_aux(
+        &self,
+        pipeline: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+        _aux: &[(String, Vec<u8>)],
+        ctl: &dyn Control,
+    ) -> Result<Vec<Output>, RunError> {
+        self.run(pipeline, params, input, filename, ctl)
+    }
+    /// Decodes the input like [`PipelineSet::check_input`] and describes it (a volume's
+    /// dimensions and box) for resources that keep the input, such as cloud scenes.
+    fn describe_input(
+        &self,
+        pipeline: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+    ) -> Result<serde_json::Value, InputError> {
+        self.check_input(pipeline, params, input, filename)
+            .map(|()| serde_json::Value::Object(Default::default()))
+    }
 }
 
 /// The pipelines of `phenomena-engine`, with the configured input and output limits.
@@ -68,7 +97,7 @@ fn kind(name: &str) -> Result<PipelineKind, ParamError> {
 
 impl PipelineSet for EnginePipelines {
     fn names(&self) -> Vec<&'static str> {
-        PipelineKind::ALL.iter().map(|k| k.name()).collect()
+        PipelineKind::public().map(|k| k.name()).collect()
     }
 
     fn input_part(&self, name: &str) -> Option<&'static str> {
@@ -99,8 +128,35 @@ impl PipelineSet for EnginePipelines {
         filename: Option<&str>,
         ctl: &dyn Control,
     ) -> Result<Vec<Output>, RunError> {
+        self.run_with_aux(name, params, input, filename, &[], ctl)
+    }
+
+    fn run_with_aux(
+        &self,
+        name: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+        ctl: &dyn Control,
+    ) -> Result<Vec<Output>, RunError> {
+        let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
+        let job = pipeline::decode_with_aux(p, input, filename, aux, &self.limits)?;
+        pipeline::run(&job, ctl).map_err(|e| match e {
+            RunFailure::Canceled => RunError::Canceled,
+            RunFailure::Unprocessable(m) => RunError::Unprocessable(m),
+        })
+    }
+
+    fn describe_input(
+        &self,
+        name: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+    ) -> Result<serde_json::Value, InputError> {
         let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
         let job = pipeline::decode(p, input, filename, &self.limits)?;
-        Ok(pipeline::run(&job, ctl)?)
+        Ok(pipeline::describe(&job))
     }
 }

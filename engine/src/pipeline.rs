@@ -1,15 +1,17 @@
 //! The pipeline registry: names, parameter validation, input decoding and the run, for every
 //! pipeline the service offers. The server and the CLI go through these functions only.
 
+use crate::cloud::{self, AmbientField};
 use crate::formats::dem::{decode_dem, DemOptions};
-use crate::geom::Dem;
-use crate::geom::Mesh;
+use crate::formats::volume::{decode_volume, VolumeOptions};
+use crate::geom::{Dem, Mesh, Volume};
 use crate::{snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError};
 
 /// Input and output size limits (configured by the server; the CLI uses the defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
-    /// Largest input grid, cells. Checked from the file header before the grid is allocated.
+    /// Largest input grid, cells (DEM) or voxels (volume). Checked from the file header before
+    /// the grid is allocated.
     pub max_input_cells: u64,
     /// Largest output image, pixels.
     pub max_output_pixels: u64,
@@ -35,16 +37,37 @@ pub enum PipelineKind {
     SnowTerrain,
     /// Snow cover on meshes (SPEC §2).
     SnowCover,
+    /// Cloud rendering, one shot: a volume and a full renderer state to images (SPEC §3).
+    Cloud,
+    /// One edit of a cloud scene version (SPEC §3.1–3.3). Internal: the cloud scene resource
+    /// submits it; it has no `POST /v1/{pipeline}` route of its own.
+    CloudEdit,
 }
 
 impl PipelineKind {
-    pub const ALL: &'static [PipelineKind] = &[PipelineKind::SnowTerrain, PipelineKind::SnowCover];
+    /// Every pipeline, internal ones included.
+    pub const ALL: &'static [PipelineKind] = &[
+        PipelineKind::SnowTerrain,
+        PipelineKind::SnowCover,
+        PipelineKind::Cloud,
+        PipelineKind::CloudEdit,
+    ];
+
+    /// The pipelines with a public `POST /v1/{name}` route.
+    pub fn public() -> impl Iterator<Item = PipelineKind> {
+        Self::ALL
+            .iter()
+            .copied()
+            .filter(|k| *k != PipelineKind::CloudEdit)
+    }
 
     /// The API name (`snow-terrain`).
     pub fn name(self) -> &'static str {
         match self {
             PipelineKind::SnowTerrain => "snow-terrain",
             PipelineKind::SnowCover => "snow-cover",
+            PipelineKind::Cloud => "cloud",
+            PipelineKind::CloudEdit => "cloud-edit",
         }
     }
 
@@ -57,7 +80,73 @@ impl PipelineKind {
         match self {
             PipelineKind::SnowTerrain => "dem",
             PipelineKind::SnowCover => "mesh",
+            PipelineKind::Cloud | PipelineKind::CloudEdit => "volume",
         }
+    }
+}
+
+/// Parameters of one cloud edit job: the edit, the state of the version it starts from, and the
+/// scene's decoder options.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CloudEditParams {
+    /// `sun-color`, `ambient` or `sun-direction`.
+    pub kind: String,
+    /// The base version's state.
+    pub base: cloud::CloudState,
+    pub edit: cloud::Edit,
+    /// The edit as sent, kept for the canonical form (request keys).
+    pub raw_edit: serde_json::Value,
+    pub bounds: Option<[[f64; 3]; 2]>,
+    pub dims: Option<[usize; 3]>,
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WireCloudEdit {
+    kind: String,
+    base: serde_json::Value,
+    edit: serde_json::Value,
+    #[serde(default)]
+    bounds: Option<serde_json::Value>,
+    #[serde(default)]
+    dims: Option<serde_json::Value>,
+}
+
+impl CloudEditParams {
+    /// Validates `{"kind", "base", "edit", "bounds"?, "dims"?}`; errors inside the edit are named
+    /// `edit.<field>`.
+    pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
+        let w: WireCloudEdit = deserialize_params(v)?;
+        let base = cloud::CloudState::from_json(&w.base)
+            .map_err(|e| ParamError::new(format!("base.{}", e.field), e.detail))?;
+        let edit = cloud::Edit::from_json(&w.kind, &w.edit, limits)
+            .map_err(|e| ParamError::new(format!("edit.{}", e.field), e.detail))?;
+        // The decoder options are validated by the cloud pipeline's own rules.
+        let mut opts = serde_json::Map::new();
+        for (k, val) in [("bounds", w.bounds), ("dims", w.dims)] {
+            if let Some(val) = val {
+                opts.insert(k.to_string(), val);
+            }
+        }
+        let p = cloud::Params::from_json(&serde_json::Value::Object(opts), limits)?;
+        Ok(Self {
+            kind: w.kind,
+            base,
+            edit,
+            raw_edit: w.edit,
+            bounds: p.bounds().map(|(lo, hi)| [lo, hi]),
+            dims: p.dims(),
+        })
+    }
+
+    fn canonical(&self) -> serde_json::Value {
+        serde_json::json!({
+            "kind": self.kind,
+            "base": self.base,
+            "edit": self.raw_edit,
+            "bounds": self.bounds,
+            "dims": self.dims,
+        })
     }
 }
 
@@ -86,6 +175,8 @@ pub fn deserialize_params<T: serde::de::DeserializeOwned>(
 pub enum Params {
     SnowTerrain(Box<snow_terrain::Params>),
     SnowCover(Box<snow_cover::Params>),
+    Cloud(Box<cloud::Params>),
+    CloudEdit(Box<CloudEditParams>),
 }
 
 impl Params {
@@ -102,6 +193,12 @@ impl Params {
             PipelineKind::SnowCover => Ok(Params::SnowCover(Box::new(
                 snow_cover::Params::from_json(v, limits)?,
             ))),
+            PipelineKind::Cloud => Ok(Params::Cloud(Box::new(cloud::Params::from_json(
+                v, limits,
+            )?))),
+            PipelineKind::CloudEdit => Ok(Params::CloudEdit(Box::new(CloudEditParams::from_json(
+                v, limits,
+            )?))),
         }
     }
 
@@ -111,6 +208,8 @@ impl Params {
         let v = match self {
             Params::SnowTerrain(p) => serde_json::to_value(p),
             Params::SnowCover(p) => serde_json::to_value(p),
+            Params::Cloud(p) => serde_json::to_value(p),
+            Params::CloudEdit(p) => Ok(p.canonical()),
         };
         // Serialising plain structs of numbers, strings and options cannot fail.
         v.unwrap_or(serde_json::Value::Null)
@@ -128,6 +227,58 @@ pub enum Job {
         params: Box<snow_cover::Params>,
         mesh: Mesh,
     },
+    Cloud {
+        params: Box<cloud::Params>,
+        volume: Volume,
+        ambient: Option<AmbientField>,
+    },
+    CloudEdit {
+        params: Box<CloudEditParams>,
+        volume: Volume,
+        ambient: Option<AmbientField>,
+    },
+}
+
+/// Why a run produced no outputs.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RunFailure {
+    #[error("canceled")]
+    Canceled,
+    /// The request cannot be carried out on this input (a cloud edit dragged from empty sky);
+    /// the message is for the user.
+    #[error("{0}")]
+    Unprocessable(String),
+}
+
+impl From<Canceled> for RunFailure {
+    fn from(_: Canceled) -> Self {
+        RunFailure::Canceled
+    }
+}
+
+/// The name of the auxiliary input holding a cloud scene version's ambient field.
+pub const AMBIENT_FIELD: &str = "ambient.bin";
+
+fn volume_options(
+    bounds: Option<[[f64; 3]; 2]>,
+    dims: Option<[usize; 3]>,
+    limits: &Limits,
+) -> VolumeOptions {
+    VolumeOptions {
+        max_voxels: limits.max_input_cells,
+        dims,
+        bounds: bounds.map(|[lo, hi]| (lo, hi)),
+    }
+}
+
+fn ambient_field(
+    aux: &[(String, Vec<u8>)],
+    volume: &Volume,
+) -> Result<Option<AmbientField>, InputError> {
+    aux.iter()
+        .find(|(name, _)| name == AMBIENT_FIELD)
+        .map(|(_, bytes)| AmbientField::from_bytes(bytes, volume.len()))
+        .transpose()
 }
 
 /// Decodes `bytes` as the input of the pipeline `params` belongs to.
@@ -135,6 +286,18 @@ pub fn decode(
     params: Params,
     bytes: &[u8],
     filename: Option<&str>,
+    limits: &Limits,
+) -> Result<Job, InputError> {
+    decode_with_aux(params, bytes, filename, &[], limits)
+}
+
+/// Like [`decode`], with the job's named auxiliary inputs (a cloud version's
+/// [`AMBIENT_FIELD`]).
+pub fn decode_with_aux(
+    params: Params,
+    bytes: &[u8],
+    filename: Option<&str>,
+    aux: &[(String, Vec<u8>)],
     limits: &Limits,
 ) -> Result<Job, InputError> {
     match params {
@@ -151,13 +314,73 @@ pub fn decode(
             let mesh = snow_cover::run::decode(bytes, filename, &p, limits)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
+        Params::Cloud(p) => {
+            let opts = volume_options(p.bounds().map(|(lo, hi)| [lo, hi]), p.dims(), limits);
+            let volume = decode_volume(bytes, filename, &opts)?;
+            let ambient = ambient_field(aux, &volume)?;
+            Ok(Job::Cloud {
+                params: p,
+                volume,
+                ambient,
+            })
+        }
+        Params::CloudEdit(p) => {
+            let volume = decode_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))?;
+            let ambient = ambient_field(aux, &volume)?;
+            Ok(Job::CloudEdit {
+                params: p,
+                volume,
+                ambient,
+            })
+        }
+    }
+}
+
+/// A short description of a decoded input (a volume's grid, box and density range), for
+/// resources that keep the input such as cloud scenes. Null for inputs without one.
+pub fn describe(job: &Job) -> serde_json::Value {
+    match job {
+        Job::Cloud { volume, .. } | Job::CloudEdit { volume, .. } => {
+            let (min, max, mean) = volume.stats();
+            serde_json::json!({
+                "dims": volume.dims,
+                "bounds": [volume.bounds.0, volume.bounds.1],
+                "voxel_size": volume.voxel_size(),
+                "density": {"min": min, "max": max, "mean": mean},
+            })
+        }
+        _ => serde_json::Value::Null,
     }
 }
 
 /// Runs the pipeline to its named outputs.
-pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
     match job {
-        Job::SnowTerrain { params, dem } => snow_terrain::run(dem, params, ctl),
-        Job::SnowCover { params, mesh } => snow_cover::run(mesh, params, ctl),
+        Job::SnowTerrain { params, dem } => Ok(snow_terrain::run(dem, params, ctl)?),
+        Job::SnowCover { params, mesh } => Ok(snow_cover::run(mesh, params, ctl)?),
+        Job::Cloud {
+            params,
+            volume,
+            ambient,
+        } => Ok(cloud::run(volume, params, ambient.as_ref(), ctl)?),
+        Job::CloudEdit {
+            params,
+            volume,
+            ambient,
+        } => {
+            let outcome =
+                cloud::apply_edit(volume, &params.base, ambient.as_ref(), &params.edit, ctl)
+                    .map_err(|e| match e {
+                        cloud::EditError::Canceled => RunFailure::Canceled,
+                        other => RunFailure::Unprocessable(other.to_string()),
+                    })?;
+            Ok(cloud::edit_outputs_with(
+                volume,
+                &outcome,
+                ambient.as_ref(),
+                &params.edit,
+                ctl,
+            )?)
+        }
     }
 }

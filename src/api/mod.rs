@@ -2,6 +2,7 @@
 //! translate; the maths happens in the engine behind the job system.
 
 mod assets;
+mod clouds;
 mod dto;
 mod jobs;
 mod submit;
@@ -28,6 +29,7 @@ use crate::metrics::Metrics;
 pub struct AppState {
     pub cfg: Arc<Config>,
     pub jobs: Jobs,
+    pub clouds: crate::clouds::Scenes,
     pub metrics: Metrics,
     /// Cancelled when the server begins shutting down (ends SSE streams, fails readiness).
     pub shutdown: CancellationToken,
@@ -42,6 +44,11 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("get", "/metrics"),
     ("get", "/openapi.yaml"),
     ("post", "/v1/assets"),
+    ("post", "/v1/clouds"),
+    ("get", "/v1/clouds/{id}"),
+    ("delete", "/v1/clouds/{id}"),
+    ("post", "/v1/clouds/{id}/renders"),
+    ("post", "/v1/clouds/{id}/edits/{kind}"),
     ("get", "/v1/assets/{id}"),
     ("get", "/v1/jobs"),
     ("get", "/v1/jobs/{id}"),
@@ -59,6 +66,10 @@ pub fn app(state: AppState) -> Router {
         .route("/openapi.yaml", get(system::openapi))
         .route("/v1/assets", post(assets::upload))
         .route("/v1/assets/{id}", get(assets::get))
+        .route("/v1/clouds", post(clouds::create))
+        .route("/v1/clouds/{id}", get(clouds::get).delete(clouds::delete))
+        .route("/v1/clouds/{id}/renders", post(clouds::render))
+        .route("/v1/clouds/{id}/edits/{kind}", post(clouds::edit))
         .route("/v1/jobs", get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
         .route("/v1/jobs/{id}/events", get(jobs::events))

@@ -30,7 +30,7 @@ fn empty_object() -> serde_json::Value {
 }
 
 /// The input as received: new bytes to store, or the id of an uploaded asset.
-enum Input {
+pub(super) enum Input {
     Upload {
         bytes: bytes::Bytes,
         filename: Option<String>,
@@ -50,7 +50,7 @@ pub(crate) fn request_key(pipeline: &str, asset: &str, params: &serde_json::Valu
     hex::encode(h.finalize())
 }
 
-fn blocking_err(e: tokio::task::JoinError) -> ApiError {
+pub(super) fn blocking_err(e: tokio::task::JoinError) -> ApiError {
     ApiError::internal(e)
 }
 
@@ -68,23 +68,7 @@ pub async fn submit(
         .input_part(pipeline)
         .ok_or_else(|| ApiError::NotFound(format!("no pipeline {pipeline}")))?;
     let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
-    let ctype = req
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let (raw_params, input) = if ctype.starts_with("multipart/form-data") {
-        read_multipart(&st, req, part).await?
-    } else if ctype.starts_with("application/json") {
-        read_json(&st, req).await?
-    } else {
-        return Err(ApiError::UnsupportedMediaType(format!(
-            "send multipart/form-data (a `params` part and a `{part}` file part) or application/json \
-             naming an uploaded asset; got {:?}",
-            if ctype.is_empty() { "no Content-Type" } else { ctype.as_str() }
-        )));
-    };
+    let (raw_params, input) = read_body(&st, req, part).await?;
 
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
@@ -97,9 +81,105 @@ pub async fn submit(
         }
     }
 
-    // Store the upload (content-addressed) so a retry or a later job can name it.
+    let (asset, bytes) = store_input(&st, input).await?;
+    let key = request_key(pipeline, &asset.id, &params);
+
+    // An identical request already queued, running or done: no decode, no new job.
+    if let Some(rec) = st.jobs.find_by_key(&key) {
+        return respond(&st, rec, wait).await;
+    }
+
+    // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed job.
+    let bytes = input_bytes(&st, &asset, bytes).await?;
+    {
+        let p = params.clone();
+        let filename = asset.filename.clone();
+        let pipelines = pipelines.clone();
+        tokio::task::spawn_blocking(move || {
+            pipelines.check_input(pipeline, &p, &bytes, filename.as_deref())
+        })
+        .await
+        .map_err(blocking_err)?
+        .map_err(|e| ApiError::from_input(e, part))?;
+    }
+    touch_asset(&st, &asset).await?;
+
+    let input = InputRef {
+        asset: asset.id,
+        filename: asset.filename,
+        aux: Vec::new(),
+    };
+    submit_job(&st, pipeline, input, params, key, wait).await
+}
+
+/// Queues a job (or joins an identical one) and answers with it, waiting per `Prefer: wait`.
+pub(super) async fn submit_job(
+    st: &AppState,
+    pipeline: &str,
+    input: InputRef,
+    params: serde_json::Value,
+    key: String,
+    wait: Option<std::time::Duration>,
+) -> Result<Response, ApiError> {
+    let rec = queue_job(st, pipeline, input, params, key)?;
+    respond(st, rec, wait).await
+}
+
+/// Queues a job (or joins an identical one), mapping a full queue to 429.
+pub(super) fn queue_job(
+    st: &AppState,
+    pipeline: &str,
+    input: InputRef,
+    params: serde_json::Value,
+    key: String,
+) -> Result<crate::jobs::JobRecord, ApiError> {
+    match st.jobs.submit(pipeline, input, params, key) {
+        Ok(Submitted::Queued(rec) | Submitted::Reused(rec)) => Ok(rec),
+        Err(SubmitError::QueueFull { capacity }) => Err(ApiError::QueueFull {
+            detail: format!("the queue is full ({capacity} jobs waiting); retry later"),
+            retry_after: 5,
+        }),
+        Err(SubmitError::ShuttingDown) => {
+            Err(ApiError::Unavailable("the service is shutting down".into()))
+        }
+        Err(SubmitError::Store(e)) => Err(e.into()),
+    }
+}
+
+/// Reads a submission body: multipart (a `params` part and the `part` file part) or JSON naming
+/// an uploaded asset.
+pub(super) async fn read_body(
+    st: &AppState,
+    req: Request,
+    part: &'static str,
+) -> Result<(serde_json::Value, Input), ApiError> {
+    let ctype = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ctype.starts_with("multipart/form-data") {
+        read_multipart(st, req, part).await
+    } else if ctype.starts_with("application/json") {
+        read_json(st, req).await
+    } else {
+        Err(ApiError::UnsupportedMediaType(format!(
+            "send multipart/form-data (a `params` part and a `{part}` file part) or application/json \
+             naming an uploaded asset; got {:?}",
+            if ctype.is_empty() { "no Content-Type" } else { ctype.as_str() }
+        )))
+    }
+}
+
+/// Stores an upload as an asset (content-addressed) so a retry or a later job can name it, or
+/// looks up a named asset. Returns the record and the bytes when they were uploaded.
+pub(super) async fn store_input(
+    st: &AppState,
+    input: Input,
+) -> Result<(crate::store::assets::AssetRecord, Option<bytes::Bytes>), ApiError> {
     let store = st.jobs.store().clone();
-    let (asset, bytes) = match input {
+    Ok(match input {
         Input::Upload { bytes, filename } => {
             let b = bytes.clone();
             let (rec, _) =
@@ -122,16 +202,16 @@ pub async fn submit(
                 }
             }
         }
-    };
-    let key = request_key(pipeline, &asset.id, &params);
+    })
+}
 
-    // An identical request already queued, running or done: no decode, no new job.
-    if let Some(rec) = st.jobs.find_by_key(&key) {
-        return respond(&st, rec, wait).await;
-    }
-
-    // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed job.
-    let bytes = match bytes {
+/// The input's bytes: the upload itself, or the named asset read from the store.
+pub(super) async fn input_bytes(
+    st: &AppState,
+    asset: &crate::store::assets::AssetRecord,
+    uploaded: Option<bytes::Bytes>,
+) -> Result<bytes::Bytes, ApiError> {
+    Ok(match uploaded {
         Some(b) => b,
         None => {
             let store = st.jobs.store().clone();
@@ -142,44 +222,23 @@ pub async fn submit(
                     .map_err(blocking_err)??,
             )
         }
-    };
-    {
-        let p = params.clone();
-        let filename = asset.filename.clone();
-        let pipelines = pipelines.clone();
-        tokio::task::spawn_blocking(move || {
-            pipelines.check_input(pipeline, &p, &bytes, filename.as_deref())
-        })
-        .await
-        .map_err(blocking_err)?
-        .map_err(|e| ApiError::from_input(e, part))?;
-    }
-    {
-        let store = st.jobs.store().clone();
-        let a = asset.clone();
-        tokio::task::spawn_blocking(move || store.touch_asset(&a))
-            .await
-            .map_err(blocking_err)??;
-    }
-
-    let input = InputRef {
-        asset: asset.id,
-        filename: asset.filename,
-    };
-    match st.jobs.submit(pipeline, input, params, key) {
-        Ok(Submitted::Queued(rec) | Submitted::Reused(rec)) => respond(&st, rec, wait).await,
-        Err(SubmitError::QueueFull { capacity }) => Err(ApiError::QueueFull {
-            detail: format!("the queue is full ({capacity} jobs waiting); retry later"),
-            retry_after: 5,
-        }),
-        Err(SubmitError::ShuttingDown) => {
-            Err(ApiError::Unavailable("the service is shutting down".into()))
-        }
-        Err(SubmitError::Store(e)) => Err(e.into()),
-    }
+    })
 }
 
-async fn respond(
+/// Refreshes the asset's retention clock.
+pub(super) async fn touch_asset(
+    st: &AppState,
+    asset: &crate::store::assets::AssetRecord,
+) -> Result<(), ApiError> {
+    let store = st.jobs.store().clone();
+    let a = asset.clone();
+    tokio::task::spawn_blocking(move || store.touch_asset(&a))
+        .await
+        .map_err(blocking_err)??;
+    Ok(())
+}
+
+pub(super) async fn respond(
     st: &AppState,
     rec: crate::jobs::JobRecord,
     wait: Option<std::time::Duration>,

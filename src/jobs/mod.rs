@@ -24,7 +24,25 @@ use tokio::sync::{watch, Notify};
 use crate::metrics::Metrics;
 use crate::pipelines::PipelineSet;
 use crate::store::{Store, StoreError};
-pub use record::{InputRef, JobError, JobRecord, OutputRecord, Snapshot, StageTiming, Status};
+pub use record::{
+    AuxInput, InputRef, JobError, JobRecord, OutputRecord, Snapshot, StageTiming, Status,
+};
+
+/// What other parts of the service need to know about jobs: resources built from job outputs
+/// (cloud scene versions) learn when a job finishes and keep their blobs from the sweeper.
+pub trait JobHooks: Send + Sync + 'static {
+    /// Called after a job reached a terminal status and was persisted (on a worker task; keep it
+    /// short and non-blocking apart from small file writes).
+    fn finished(&self, _rec: &JobRecord) {}
+    /// Blobs that must survive retention although no live job or asset references them.
+    fn pinned_blobs(&self) -> HashSet<String> {
+        HashSet::new()
+    }
+}
+
+/// No hooks.
+pub struct NoHooks;
+impl JobHooks for NoHooks {}
 
 /// Job-system settings (from [`crate::config::Config`]).
 #[derive(Debug, Clone)]
@@ -115,6 +133,7 @@ pub(crate) struct State {
 pub(crate) struct Inner {
     pub store: Store,
     pub pipelines: Arc<dyn PipelineSet>,
+    pub hooks: Arc<dyn JobHooks>,
     pub cfg: JobsConfig,
     pub metrics: Metrics,
     pub pool: rayon::ThreadPool,
@@ -162,6 +181,7 @@ impl Jobs {
     pub fn start(
         store: Store,
         pipelines: Arc<dyn PipelineSet>,
+        hooks: Arc<dyn JobHooks>,
         cfg: JobsConfig,
         metrics: Metrics,
     ) -> Result<Self, StartError> {
@@ -212,6 +232,7 @@ impl Jobs {
         let inner = Arc::new(Inner {
             store,
             pipelines,
+            hooks,
             cfg,
             metrics,
             pool,
@@ -467,8 +488,11 @@ impl Jobs {
         let mut keep: HashSet<String> = assets.clone();
         for e in st.jobs.values() {
             keep.insert(e.record.input.asset.clone());
+            keep.extend(e.record.input.aux.iter().map(|a| a.blob.clone()));
             keep.extend(e.record.outputs.iter().map(|o| o.sha256.clone()));
         }
+        drop(st);
+        keep.extend(self.inner.hooks.pinned_blobs());
         keep
     }
 
@@ -531,11 +555,20 @@ impl Jobs {
                 .with_label_values(&[rec.pipeline.as_str(), rec.status.as_str()])
                 .inc();
         }
-        if let Some(entry) = st.jobs.get_mut(&rec.id) {
-            entry.live.tx.send_replace(rec.snapshot());
+        let id = rec.id.clone();
+        let terminal = rec.status.is_terminal().then(|| rec.clone());
+        if let Some(entry) = st.jobs.get_mut(&id) {
             entry.record = rec;
         }
         drop(st);
+        // Hooks run before waiters wake, so a client woken by the job's end sees what the hook
+        // built from it (a cloud scene's new version).
+        if let Some(rec) = &terminal {
+            self.inner.hooks.finished(rec);
+        }
+        if let Some(entry) = self.state().jobs.get(&id) {
+            entry.live.tx.send_replace(entry.record.snapshot());
+        }
         self.inner.idle.notify_waiters();
         persisted
     }

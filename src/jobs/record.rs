@@ -56,12 +56,23 @@ pub struct JobError {
     pub detail: String,
 }
 
-/// The input a job reads: a stored asset.
+/// The input a job reads: a stored asset, plus named auxiliary blobs some pipelines need besides
+/// their main input (a cloud scene version's ambient field, `ambient.bin`).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct InputRef {
     pub asset: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub filename: Option<String>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub aux: Vec<AuxInput>,
+}
+
+/// A named auxiliary input blob.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AuxInput {
+    pub name: String,
+    /// SHA-256 of the blob in the store.
+    pub blob: String,
 }
 
 /// Everything known about a job; persisted as `jobs/<id>.json` at each status change.

@@ -105,7 +105,16 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
     tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
     let store = jobs.store().clone();
     let asset = rec.input.asset.clone();
-    let input = match tokio::task::spawn_blocking(move || store.read_blob(&asset)).await {
+    let aux_refs = rec.input.aux.clone();
+    let read = move || -> Result<_, crate::store::StoreError> {
+        let input = store.read_blob(&asset)?;
+        let aux = aux_refs
+            .into_iter()
+            .map(|a| Ok((a.name, store.read_blob(&a.blob)?)))
+            .collect::<Result<Vec<_>, crate::store::StoreError>>()?;
+        Ok((input, aux))
+    };
+    let (input, aux) = match tokio::task::spawn_blocking(read).await {
         Ok(Ok(bytes)) => bytes,
         Ok(Err(e)) => {
             tracing::error!(job = %rec.id, error = %e, "input blob unreadable");
@@ -148,7 +157,14 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
             let span = tracing::info_span!("job", job = %job_id, pipeline = %name);
             let _e = span.enter();
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                pipelines.run(&name, &params, &input, filename.as_deref(), ctl.as_ref())
+                pipelines.run_with_aux(
+                    &name,
+                    &params,
+                    &input,
+                    filename.as_deref(),
+                    &aux,
+                    ctl.as_ref(),
+                )
             }));
             let _ = tx.send(result);
         });
@@ -246,6 +262,10 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
         Ok(Ok(Err(RunError::Input(e)))) => {
             rec.status = Status::Failed;
             rec.error = Some(failure("invalid-input", "Invalid input", e.to_string()));
+        }
+        Ok(Ok(Err(RunError::Unprocessable(msg)))) => {
+            rec.status = Status::Failed;
+            rec.error = Some(failure("unprocessable", "Cannot be done", msg));
         }
         Ok(Ok(Err(RunError::Param(e)))) => {
             rec.status = Status::Failed;

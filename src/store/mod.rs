@@ -65,7 +65,7 @@ pub struct Store {
 impl Store {
     /// Opens (creating if needed) the store under `root`.
     pub fn open(root: &Path) -> Result<Self, StoreError> {
-        for sub in ["blobs/sha256", "assets", "jobs", "tmp"] {
+        for sub in ["blobs/sha256", "assets", "jobs", "clouds", "tmp"] {
             let p = root.join(sub);
             std::fs::create_dir_all(&p).map_err(io(&p))?;
         }

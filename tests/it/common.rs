@@ -139,6 +139,34 @@ impl PipelineSet for WithSleepy {
             self.0.run(name, p, input, f, ctl)
         }
     }
+    fn run_with_aux(
+        &self,
+        name: &str,
+        p: &Value,
+        input: &[u8],
+        f: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+        ctl: &dyn Control,
+    ) -> Result<Vec<Output>, RunError> {
+        if name == "sleepy" {
+            Sleepy.run(name, p, input, f, ctl)
+        } else {
+            self.0.run_with_aux(name, p, input, f, aux, ctl)
+        }
+    }
+    fn describe_input(
+        &self,
+        name: &str,
+        p: &Value,
+        input: &[u8],
+        f: Option<&str>,
+    ) -> Result<Value, InputError> {
+        if name == "sleepy" {
+            Sleepy.describe_input(name, p, input, f)
+        } else {
+            self.0.describe_input(name, p, input, f)
+        }
+    }
 }
 
 /// A running server; dropped at the end of the test (the runtime ends with the test).
