@@ -3,6 +3,7 @@
 
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde_json::json;
 
 use super::colour::albedo;
@@ -66,15 +67,15 @@ fn colours(t: &[f32], p: &Params) -> Vec<[f32; 3]> {
 /// `descriptor.png`: t as grey (0 = snow black… no: 255·t, so snow is dark and rock bright is
 /// avoided) — we draw snow white: grey = 255·(1 − t), transparent where nodata.
 fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
-    let mut data = Vec::with_capacity(t.len() * 4);
-    for &v in t {
-        if v.is_nan() {
-            data.extend_from_slice(&[0, 0, 0, 0]);
-        } else {
-            let g = (255.0 * (1.0 - v.clamp(0.0, 1.0))).round() as u8;
-            data.extend_from_slice(&[g, g, g, 255]);
-        }
-    }
+    let mut data = vec![0u8; t.len() * 4];
+    data.par_chunks_mut(4)
+        .zip(t.par_iter())
+        .for_each(|(px, &v)| {
+            if !v.is_nan() {
+                let g = (255.0 * (1.0 - v.clamp(0.0, 1.0))).round() as u8;
+                px.copy_from_slice(&[g, g, g, 255]);
+            }
+        });
     RgbaImage {
         width: dem.width as u32,
         height: dem.height as u32,
@@ -87,9 +88,7 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
 pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(String, f64)> = Vec::new();
-    let mut lap = |name: &str, t0: Instant| {
-        timings.push((name.to_string(), t0.elapsed().as_secs_f64() * 1e3))
-    };
+    let ms = |t0: Instant| t0.elapsed().as_secs_f64() * 1e3;
 
     let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
 
@@ -97,74 +96,94 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     let t0 = Instant::now();
     let colour = colours(&d.t, p);
     let heights = world_heights(dem, p.descriptor.vertical_exaggeration);
-    lap("colour", t0);
+    timings.push(("colour".to_string(), ms(t0)));
 
+    // The outputs that do not need the picture (snow_cover.tif, descriptor.png, terrain.glb)
+    // are encoded while the render runs: the render has serial stretches (mesh setup, band
+    // tails) that leave a core idle. Stage "render" is the render's own time; "encode" below is
+    // the PNG plus whatever the other encoders took beyond the render.
     let t0 = Instant::now();
-    let scene = scene_of(dem, &heights, &colour);
-    let accel = TerrainAccel::new(&scene);
-    let camera = p
-        .camera
-        .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
+    let snow: Vec<f32> = d.t.par_iter().map(|&t| 1.0 - t).collect();
     let render_end = if p.sweep_runs.is_empty() {
         RENDER_END
     } else {
         0.6
     };
-    let image = render_with(
-        &accel,
-        &camera,
-        &lighting(p),
-        p.width,
-        p.height,
-        ctl,
-        (DESCRIPTOR_END, render_end),
-    )?;
-    lap("render", t0);
+    let ((image, render_ms), (tif, (preview, glb))) = rayon::join(
+        || {
+            let t0 = Instant::now();
+            let scene = scene_of(dem, &heights, &colour);
+            let accel = TerrainAccel::new(&scene);
+            let camera = p
+                .camera
+                .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
+            let image = render_with(
+                &accel,
+                &camera,
+                &lighting(p),
+                p.width,
+                p.height,
+                ctl,
+                (DESCRIPTOR_END, render_end),
+            );
+            (image, ms(t0))
+        },
+        || {
+            rayon::join(
+                || write_float32_geotiff(dem.width, dem.height, &snow, &dem.georef),
+                || {
+                    rayon::join(
+                        || encode_rgba(&descriptor_preview(dem, &d.t)),
+                        || {
+                            terrain_glb(
+                                &heights,
+                                dem.width,
+                                dem.height,
+                                dem.dx,
+                                dem.dy,
+                                &colour,
+                                p.mesh_max_vertices,
+                            )
+                        },
+                    )
+                },
+            )
+        },
+    );
+    let image = image?;
+    timings.push(("render".to_string(), render_ms));
+    let overlap_ms = (ms(t0) - render_ms).max(0.0);
 
     let mut outputs = Vec::new();
     if !p.sweep_runs.is_empty() {
         let t0 = Instant::now();
         let sheet = sweep_sheet(dem, p, ctl, (render_end, RENDER_END))?;
         outputs.push(Output::new("sweep.png", "image/png", encode_rgba(&sheet)));
-        lap("sweep", t0);
+        timings.push(("sweep".to_string(), ms(t0)));
     }
 
     ctl.progress("encode", RENDER_END);
     let t0 = Instant::now();
-    let snow: Vec<f32> = d.t.iter().map(|&t| 1.0 - t).collect();
-    let (png, tif, preview, glb) = {
-        let ((png, tif), (preview, glb)) = rayon::join(
-            || {
-                rayon::join(
-                    || encode_rgba(&image),
-                    || write_float32_geotiff(dem.width, dem.height, &snow, &dem.georef),
-                )
-            },
-            || {
-                rayon::join(
-                    || encode_rgba(&descriptor_preview(dem, &d.t)),
-                    || {
-                        terrain_glb(
-                            &heights,
-                            dem.width,
-                            dem.height,
-                            dem.dx,
-                            dem.dy,
-                            &colour,
-                            p.mesh_max_vertices,
-                        )
-                    },
-                )
-            },
-        );
-        ((png, tif), (preview, glb)).into_flat()
-    };
-    lap("encode", t0);
+    let png = encode_rgba(&image);
+    timings.push(("encode".to_string(), overlap_ms + ms(t0)));
     ctl.checkpoint()?;
 
-    let valid: Vec<f32> = snow.iter().copied().filter(|s| !s.is_nan()).collect();
-    let covered = valid.iter().filter(|&&s| s >= 0.5).count();
-    let mean_snow = valid.iter().map(|&s| f64::from(s)).sum::<f64>() / valid.len().max(1) as f64;
+    // (valid cells, covered cells, Σ snow) per chunk, summed in chunk order: the same figures
+    // whatever the thread count.
+    let parts: Vec<(usize, usize, f64)> = snow
+        .par_chunks(1 << 16)
+        .map(|c| {
+            c.iter()
+                .filter(|s| !s.is_nan())
+                .fold((0, 0, 0.0), |(n, k, sum), &s| {
+                    (n + 1, k + usize::from(s >= 0.5), sum + f64::from(s))
+                })
+        })
+        .collect();
+    let (valid, covered, total) = parts
+        .iter()
+        .fold((0, 0, 0.0), |(n, k, s), p| (n + p.0, k + p.1, s + p.2));
+    let mean_snow = total / valid.max(1) as f64;
     let mut stage_ms: Vec<serde_json::Value> = d
         .timings
         .iter()
@@ -181,12 +200,12 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
             "cell_size_m": [dem.dx, dem.dy],
             "epsg": dem.georef.epsg,
             "geographic": dem.georef.geographic,
-            "valid_cells": valid.len(),
+            "valid_cells": valid,
             "elevation_min": stats.map(|s| s.0),
             "elevation_max": stats.map(|s| s.1),
             "elevation_mean": stats.map(|s| s.2),
         },
-        "snow_covered_fraction": covered as f64 / valid.len().max(1) as f64,
+        "snow_covered_fraction": covered as f64 / valid.max(1) as f64,
         "mean_snow": mean_snow,
         "timings": stage_ms,
         "total_ms": t_all.elapsed().as_secs_f64() * 1e3,
@@ -205,16 +224,6 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     outputs.push(Output::new("report.json", "application/json", report));
     ctl.progress("done", 1.0);
     Ok(outputs)
-}
-
-trait IntoFlat<A, B, C, D> {
-    fn into_flat(self) -> (A, B, C, D);
-}
-impl<A, B, C, D> IntoFlat<A, B, C, D> for ((A, B), (C, D)) {
-    fn into_flat(self) -> (A, B, C, D) {
-        let ((a, b), (c, d)) = self;
-        (a, b, c, d)
-    }
 }
 
 /// `sweep.png`: one tile per sweep value, each a full descriptor + render at a third of the

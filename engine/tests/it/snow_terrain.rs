@@ -192,3 +192,153 @@ fn cancellation_stops_the_pipeline() {
     let r = run(&d, &params(json!({})), &CancelAfter(0.into()));
     assert!(matches!(r, Err(Canceled)));
 }
+
+/// `w × h` window of `src` tiled by mirroring (as `benches/snow_terrain.rs` builds its inputs).
+fn mirrored(src: &phenomena_engine::geom::Dem, w: usize, h: usize) -> phenomena_engine::geom::Dem {
+    let fold = |i: usize, n: usize| {
+        let p = i % (2 * n);
+        if p < n {
+            p
+        } else {
+            2 * n - 1 - p
+        }
+    };
+    let mut heights = Vec::with_capacity(w * h);
+    for r in 0..h {
+        for c in 0..w {
+            heights.push(src.heights[fold(r, src.height) * src.width + fold(c, src.width)]);
+        }
+    }
+    phenomena_engine::geom::Dem {
+        width: w,
+        height: h,
+        heights,
+        dx: src.dx,
+        dy: src.dy,
+        georef: Default::default(),
+    }
+}
+
+/// CPU time of this process (all threads), ms, from /proc (10 ms ticks).
+fn cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let ticks: f64 = f.get(11).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+        + f.get(12).and_then(|v| v.parse().ok()).unwrap_or(0.0);
+    ticks * 10.0
+}
+
+/// The two speed targets, in process (release):
+/// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture snow_terrain::timings`.
+/// Paper case: `run` (descriptor, colour, render, every default output) on Tanzawa cropped to
+/// 400×200 at 900×600; 4096²: descriptor + colour + 1920×1080 render + PNG as the bench's
+/// `descriptor_render_png_4096` (`SNOW_TIMINGS_4096=0` skips it). Prints the median wall time,
+/// the mean process CPU per run and the median of each report stage.
+#[test]
+#[ignore]
+fn timings() {
+    use std::time::Instant;
+    let src = dem("tanzawa_sagami_aster_gdem2.tif");
+    println!("rayon threads: {}", rayon::current_num_threads());
+    let paper = mirrored(&src, 400, 200);
+    let p = params(json!({"width": 900, "height": 600}));
+    run(&paper, &p, &NoControl).unwrap();
+    let reps = 30;
+    let mut walls = Vec::new();
+    let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
+    let c0 = cpu_ms();
+    for _ in 0..reps {
+        let t = Instant::now();
+        let outs = run(&paper, &p, &NoControl).unwrap();
+        walls.push(t.elapsed().as_secs_f64() * 1e3);
+        let r: serde_json::Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
+        for s in r["timings"].as_array().unwrap() {
+            let name = s["stage"].as_str().unwrap().to_string();
+            stages
+                .entry(name)
+                .or_default()
+                .push(s["ms"].as_f64().unwrap());
+        }
+    }
+    let cpu = (cpu_ms() - c0) / f64::from(reps);
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(|a, b| a.total_cmp(b));
+        v[v.len() / 2]
+    };
+    println!(
+        "paper 400x200 -> 900x600, run(): median {:.1} ms wall, min {:.1}, {cpu:.1} ms cpu/run",
+        median(&mut walls),
+        walls[0]
+    );
+    for (name, v) in &mut stages {
+        println!("  {name:<10} {:7.2} ms (median)", median(v));
+    }
+    if std::env::var("SNOW_TIMINGS_4096").is_ok_and(|v| v == "0") {
+        return;
+    }
+    use phenomena_engine::formats::png_write::encode_rgba;
+    use phenomena_engine::render::camera::Camera;
+    use phenomena_engine::render::terrain::{
+        render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
+    };
+    use phenomena_engine::snow_terrain::colour::albedo;
+    use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
+    let big = mirrored(&src, 4096, 4096);
+    let dp = DescriptorParams::default();
+    let mut walls = Vec::new();
+    let c0 = cpu_ms();
+    let reps = 5;
+    for i in 0..=reps {
+        let t = Instant::now();
+        let d = compute(&big, &dp, &NoControl, (0.0, 1.0)).unwrap();
+        let t1 = t.elapsed().as_secs_f64() * 1e3;
+        let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+        let t2 = t.elapsed().as_secs_f64() * 1e3;
+        let scene = TerrainScene {
+            width: big.width,
+            height: big.height,
+            dx: big.dx,
+            dy: big.dy,
+            heights: &big.heights,
+            albedo: &colour,
+        };
+        let accel = TerrainAccel::new(&scene);
+        let (center, radius) = scene.bounding_sphere();
+        let camera = Camera::orbit(
+            center,
+            200.0,
+            30.0,
+            Camera::auto_distance(radius, 40.0),
+            40.0,
+        );
+        let light = Lighting {
+            sun_dir: sun_direction(180.0, 35.0),
+            ..Lighting::default()
+        };
+        let img = render_with(&accel, &camera, &light, 1920, 1080, &NoControl, (0.0, 1.0)).unwrap();
+        let t3 = t.elapsed().as_secs_f64() * 1e3;
+        let png = encode_rgba(&img);
+        let t4 = t.elapsed().as_secs_f64() * 1e3;
+        if i == 0 {
+            std::fs::write(
+                std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("tanzawa_4096_1080p.png"),
+                &png,
+            )
+            .unwrap();
+            continue; // warm-up run, not counted
+        }
+        walls.push(t4);
+        println!(
+            "4096^2: descriptor {t1:.0}, colour {:.0}, render {:.0}, png {:.0}, total {t4:.0} ms",
+            t2 - t1,
+            t3 - t2,
+            t4 - t3
+        );
+    }
+    let cpu = (cpu_ms() - c0) / f64::from(reps + 1);
+    println!(
+        "4096^2 descriptor + 1920x1080 render + png: median {:.0} ms wall, {cpu:.0} ms cpu/run",
+        median(&mut walls)
+    );
+}
