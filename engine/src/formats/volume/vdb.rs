@@ -138,9 +138,14 @@ fn bit(mask: &[u64], i: usize) -> bool {
 
 fn ones(mask: &[u64]) -> impl Iterator<Item = usize> + '_ {
     mask.iter().enumerate().flat_map(|(w, &word)| {
-        (0..64)
-            .filter(move |b| word >> b & 1 == 1)
-            .map(move |b| w * 64 + b)
+        let mut rest = word;
+        std::iter::from_fn(move || {
+            (rest != 0).then(|| {
+                let b = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                w * 64 + b
+            })
+        })
     })
 }
 
@@ -354,17 +359,20 @@ impl Codec {
         };
         let width = if self.half { 2 } else { self.width };
         let bytes = self.data(r, stored * width)?;
-        let mut vals = bytes.chunks_exact(width).map(|c| self.value(c, width));
+        let vals = bytes.chunks_exact(width).map(|c| self.value(c, width));
         if !masked {
             return Ok(vals.collect());
         }
-        Ok((0..count)
-            .map(|i| match (bit(mask, i), bit(&selection, i)) {
-                (true, _) => vals.next().unwrap_or(bg),
-                (false, true) => inactive1,
-                (false, false) => inactive0,
-            })
-            .collect())
+        // Inactive values first (the selection mask picks the second one), then the stored
+        // active values in mask order.
+        let mut out = vec![inactive0; count];
+        for i in ones(&selection).filter(|&i| i < count) {
+            out[i] = inactive1;
+        }
+        for (i, v) in ones(mask).filter(|&i| i < count).zip(vals) {
+            out[i] = v;
+        }
+        Ok(out)
     }
 }
 
