@@ -1,0 +1,323 @@
+//! Criterion benches of the `cloud` pipeline (SPEC §3), one per stage (STYLE habit 10).
+//!
+//! Inputs: the OpenVDB smoke sample (`../shared/data/volume/openvdb_smoke_density.nrrd`,
+//! 111×222×112, placed in SPEC §3's default box) and a procedural cumulus (spheres + fBm) at
+//! 128³ and 256³, because no real volume we ship is that large.
+//!
+//! Baseline for the ambient solve: the same SPD system (the symmetric LLW Laplacian with the
+//! pins as Dirichlet values) in a CSR matrix, solved by Jacobi-preconditioned conjugate
+//! gradients written here (no sparse crate: none was in the local registry cache, and a plain CG
+//! over CSR is what such a crate would run).
+//!
+//! Run: `cargo bench --bench cloud` (a few minutes on 2 cores). `CLOUD_BENCH_BIG=1` adds the
+//! 128³ and 256³ ambient solves and their CG baselines (each run takes from tens of seconds to
+//! minutes).
+#![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
+#![allow(clippy::needless_range_loop)]
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use phenomena_engine::cloud::edit::{sun_color, sun_direction, Edit};
+use phenomena_engine::cloud::light::SunLight;
+use phenomena_engine::cloud::march::{render_layers, Prepared};
+use phenomena_engine::cloud::multigrid::{llw_weights, propagate, SolveOptions};
+use phenomena_engine::cloud::{CloudState, View};
+use phenomena_engine::formats::volume::{decode_volume, VolumeOptions};
+use phenomena_engine::geom::Volume;
+use phenomena_engine::pipeline::Limits;
+use phenomena_engine::NoControl;
+use serde_json::json;
+
+fn smoke() -> Volume {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/volume/openvdb_smoke_density.nrrd");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let v = decode_volume(&bytes, Some("smoke.nrrd"), &VolumeOptions::default()).unwrap();
+    Volume::new(v.dims, v.density, Volume::default_bounds(v.dims)).unwrap()
+}
+
+fn hash(x: i32, y: i32, z: i32) -> f32 {
+    let mut h = (x as u32).wrapping_mul(0x8da6_b343)
+        ^ (y as u32).wrapping_mul(0xd816_3841)
+        ^ (z as u32).wrapping_mul(0xcb1a_b31f);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0x5bd1_e995);
+    h ^= h >> 15;
+    (h & 0xffff) as f32 / 65535.0
+}
+
+fn noise(p: [f32; 3]) -> f32 {
+    let i = p.map(|v| v.floor() as i32);
+    let f = [0, 1, 2].map(|k| {
+        let t = p[k] - p[k].floor();
+        t * t * (3.0 - 2.0 * t)
+    });
+    let mut s = 0.0;
+    for c in 0..8 {
+        let (a, b, e) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let w = (if a == 1 { f[0] } else { 1.0 - f[0] })
+            * (if b == 1 { f[1] } else { 1.0 - f[1] })
+            * (if e == 1 { f[2] } else { 1.0 - f[2] });
+        s += w * hash(i[0] + a, i[1] + b, i[2] + e);
+    }
+    s
+}
+
+/// The procedural cumulus of the tests (`engine/tests/it/cloud.rs`) at side `n`.
+fn cumulus(n: usize) -> Volume {
+    let spheres = [
+        ([0.5, 0.35, 0.5], 0.22),
+        ([0.33, 0.3, 0.45], 0.16),
+        ([0.67, 0.3, 0.55], 0.17),
+        ([0.48, 0.52, 0.5], 0.16),
+    ];
+    let mut d = Vec::with_capacity(n * n * n);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let p = [x, y, z].map(|v| (v as f32 + 0.5) / n as f32);
+                let (mut fbm, mut amp, mut fr) = (0.0, 0.5, 6.0);
+                for _ in 0..4 {
+                    fbm += amp * noise(p.map(|v| v * fr));
+                    amp *= 0.5;
+                    fr *= 2.0;
+                }
+                let mut field = f32::NEG_INFINITY;
+                for (c, r) in spheres {
+                    let dd =
+                        ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2))
+                            .sqrt();
+                    field = field.max(1.0 - dd / r);
+                }
+                let base = ((p[1] - 0.18) * 20.0).clamp(0.0, 1.0);
+                d.push(((field + 0.35 * (fbm - 0.45)) * 3.0).clamp(0.0, 1.0) * base);
+            }
+        }
+    }
+    Volume::new([n; 3], d, Volume::default_bounds([n; 3])).unwrap()
+}
+
+fn view(w: u32, h: u32) -> View {
+    let e = Edit::from_json(
+        "sun-direction",
+        &json!({"width": w, "height": h, "from": [0, 0], "to": [0, 0]}),
+        &Limits::default(),
+    )
+    .unwrap();
+    e.view().clone()
+}
+
+fn render_full(v: &Volume, s: &CloudState, view: &View) -> f32 {
+    let light = SunLight::compute(v, s.sun_direction, s.kappa, &NoControl).unwrap();
+    let prep = Prepared::new(v, &light, s, None);
+    let cam = view.camera(v.bounds);
+    let l = render_layers(&prep, &cam, view.width, view.height, &NoControl).unwrap();
+    l.alpha[l.alpha.len() / 2]
+}
+
+fn bench_render(c: &mut Criterion) {
+    let mut g = c.benchmark_group("cloud");
+    g.sample_size(10).measurement_time(Duration::from_secs(20));
+    let s = CloudState::default();
+    let sm = smoke();
+    let cu = cumulus(256);
+    g.bench_function("light_sweep_256", |b| {
+        b.iter(|| SunLight::compute(&cu, s.sun_direction, s.kappa, &NoControl).unwrap())
+    });
+    let v1024 = view(1024, 1024);
+    g.bench_function("render_256_1024", |b| {
+        b.iter(|| render_full(&cu, &s, &v1024))
+    });
+    g.bench_function("render_smoke_1024", |b| {
+        b.iter(|| render_full(&sm, &s, &v1024))
+    });
+    g.finish();
+}
+
+fn bench_edits(c: &mut Criterion) {
+    let mut g = c.benchmark_group("cloud");
+    g.sample_size(20).measurement_time(Duration::from_secs(10));
+    let s = CloudState::default();
+    let cu = cumulus(256);
+    let view = view(1024, 1024);
+    // The sun-colour edit with the render at that camera existing: the light grid and the
+    // prepared sources are reused; only the ~2,000 painted rays are marched.
+    let light = SunLight::compute(&cu, s.sun_direction, s.kappa, &NoControl).unwrap();
+    let prep = Prepared::new(&cu, &light, &s, None);
+    let px: Vec<[u32; 2]> = (0..2000u32)
+        .map(|i| [384 + (i % 200), 500 + (i / 200) * 4])
+        .collect();
+    let mut wire = json!({"width": 1024, "height": 1024,
+        "strokes": [{"color": "#ffc090", "pixels": px}]});
+    let e = Edit::from_json("sun-color", &wire, &Limits::default()).unwrap();
+    let Edit::SunColor(se) = &e else {
+        unreachable!()
+    };
+    g.bench_function("sun_color_edit_2000px_256", |b| {
+        b.iter(|| {
+            let samples = sun_color::painted_samples(&prep, &cu, se);
+            sun_color::solve(&samples, None)
+        })
+    });
+    wire = json!({"width": 1024, "height": 1024, "from": [512, 520], "to": [600, 560]});
+    let e = Edit::from_json("sun-direction", &wire, &Limits::default()).unwrap();
+    let Edit::SunDirection(de) = &e else {
+        unreachable!()
+    };
+    let _ = view;
+    g.bench_function("sun_direction_edit_256", |b| {
+        b.iter(|| sun_direction::drag(&cu, &s, de))
+    });
+    g.finish();
+}
+
+/// The ambient problem: guide = sun transmittance, pins = two painted blobs of cloud voxels.
+fn ambient_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
+    let v = cumulus(n);
+    let s = CloudState::default();
+    let light = SunLight::compute(&v, s.sun_direction, s.kappa, &NoControl).unwrap();
+    let mut pins = vec![];
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let i = v.index(x, y, z);
+                if v.density[i] <= 0.0 {
+                    continue;
+                }
+                let p = [x, y, z].map(|c| c as f64 / n as f64);
+                let d1 = (p[0] - 0.35).powi(2) + (p[1] - 0.3).powi(2) + (p[2] - 0.45).powi(2);
+                let d2 = (p[0] - 0.65).powi(2) + (p[1] - 0.4).powi(2) + (p[2] - 0.55).powi(2);
+                if d1 < 0.004 {
+                    pins.push((i, [0.9, 0.5, 0.3]));
+                } else if d2 < 0.003 {
+                    pins.push((i, [0.2, 0.3, 0.8]));
+                }
+            }
+        }
+    }
+    (v, light.transmittance, pins)
+}
+
+/// Baseline: CSR matrix of the same system (free voxels only) and Jacobi-preconditioned CG per
+/// channel to the same relative residual. Returns the iterations of the slowest channel.
+fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64) -> usize {
+    let n = guide.len();
+    let a = llw_weights(dims, guide);
+    let mut pin = vec![None; n];
+    for &(i, c) in pins {
+        pin[i] = Some(c);
+    }
+    let free: Vec<usize> = (0..n).filter(|&i| pin[i].is_none()).collect();
+    let mut id = vec![usize::MAX; n];
+    for (k, &i) in free.iter().enumerate() {
+        id[i] = k;
+    }
+    let [nx, ny, _] = dims;
+    let (mut indptr, mut indices, mut data) = (vec![0usize], vec![], vec![]);
+    let mut b = vec![[0f64; 3]; free.len()];
+    let mut diag = vec![0f64; free.len()];
+    for (k, &i) in free.iter().enumerate() {
+        let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+        let nb = phenomena_engine::cloud::multigrid::neighbours(dims, x, y, z);
+        let mut d = 0.0;
+        let mut row: Vec<(usize, f64)> = vec![];
+        for (e, j) in nb.iter().enumerate() {
+            let Some(j) = *j else { continue };
+            let w = f64::from(if e % 2 == 0 { a[j][e / 2] } else { a[i][e / 2] });
+            d += w;
+            match pin[j] {
+                Some(c) => {
+                    for q in 0..3 {
+                        b[k][q] += w * f64::from(c[q]);
+                    }
+                }
+                None => row.push((id[j], -w)),
+            }
+        }
+        row.push((k, d));
+        row.sort_by_key(|r| r.0);
+        diag[k] = d;
+        for (c, v) in row {
+            indices.push(c);
+            data.push(v);
+        }
+        indptr.push(indices.len());
+    }
+    let m = free.len();
+    let spmv = |x: &[f64], y: &mut [f64]| {
+        for r in 0..m {
+            let mut s = 0.0;
+            for k in indptr[r]..indptr[r + 1] {
+                s += data[k] * x[indices[k]];
+            }
+            y[r] = s;
+        }
+    };
+    let mut worst = 0;
+    for q in 0..3 {
+        let rhs: Vec<f64> = b.iter().map(|v| v[q]).collect();
+        let bn = rhs.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if bn == 0.0 {
+            continue;
+        }
+        let mut x = vec![0f64; m];
+        let mut r = rhs.clone();
+        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(a, d)| a / d).collect();
+        let mut p = z.clone();
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let mut ap = vec![0f64; m];
+        let mut it = 0;
+        while it < 20_000 {
+            it += 1;
+            spmv(&p, &mut ap);
+            let alpha = rz / p.iter().zip(&ap).map(|(a, b)| a * b).sum::<f64>();
+            for k in 0..m {
+                x[k] += alpha * p[k];
+                r[k] -= alpha * ap[k];
+            }
+            if r.iter().map(|v| v * v).sum::<f64>().sqrt() / bn <= tol {
+                break;
+            }
+            for k in 0..m {
+                z[k] = r[k] / diag[k];
+            }
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for k in 0..m {
+                p[k] = z[k] + beta * p[k];
+            }
+        }
+        worst = worst.max(it);
+    }
+    worst
+}
+
+fn bench_ambient(c: &mut Criterion) {
+    let mut g = c.benchmark_group("cloud");
+    g.sample_size(10).measurement_time(Duration::from_secs(30));
+    let mut sizes = vec![64];
+    if std::env::var("CLOUD_BENCH_BIG").as_deref() == Ok("1") {
+        sizes.extend([128, 256]);
+    }
+    for n in sizes {
+        let (v, guide, pins) = ambient_problem(n);
+        g.bench_function(format!("ambient_multigrid_{n}"), |b| {
+            b.iter(|| {
+                let (_, st) =
+                    propagate(v.dims, &guide, &pins, SolveOptions::default(), &NoControl).unwrap();
+                assert!(*st.residuals.last().unwrap() <= 1e-6);
+                st.residuals.len()
+            })
+        });
+        g.bench_function(format!("ambient_csr_jacobi_cg_{n}"), |b| {
+            b.iter(|| csr_cg(v.dims, &guide, &pins, 1e-6))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_render, bench_edits, bench_ambient);
+criterion_main!(benches);
