@@ -16,7 +16,8 @@ use serde_json::{Map, Value};
 
 use super::jobs::prefer_wait;
 use super::submit::{
-    blocking_err, input_bytes, queue_job, read_body, request_key, respond, store_input, touch_asset,
+    blocking_err, describe_input, input_bytes, queue_job, read_body, request_key, respond,
+    store_input, touch_asset,
 };
 use super::AppState;
 use crate::clouds::{is_scene_id, SceneError, SceneRecord, VersionRecord, VersionStatus};
@@ -130,17 +131,15 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     let canonical = object(&canonical, "params")?;
     let (asset, uploaded) = store_input(&st, input).await?;
     let bytes = input_bytes(&st, &asset, uploaded).await?;
-    let info = {
-        let p = Value::Object(canonical.clone());
-        let filename = asset.filename.clone();
-        let pipelines = pipelines.clone();
-        tokio::task::spawn_blocking(move || {
-            pipelines.describe_input(RENDER, &p, &bytes, filename.as_deref())
-        })
-        .await
-        .map_err(blocking_err)?
-        .map_err(|e| ApiError::from_input(e, "volume"))?
-    };
+    let info = describe_input(
+        &st,
+        RENDER,
+        &Value::Object(canonical.clone()),
+        bytes,
+        &asset,
+        "volume",
+    )
+    .await?;
     touch_asset(&st, &asset).await?;
     let mut state = Map::new();
     let mut input_opts = Map::new();

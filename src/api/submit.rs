@@ -91,17 +91,7 @@ pub async fn submit(
 
     // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed job.
     let bytes = input_bytes(&st, &asset, bytes).await?;
-    {
-        let p = params.clone();
-        let filename = asset.filename.clone();
-        let pipelines = pipelines.clone();
-        tokio::task::spawn_blocking(move || {
-            pipelines.check_input(pipeline, &p, &bytes, filename.as_deref())
-        })
-        .await
-        .map_err(blocking_err)?
-        .map_err(|e| ApiError::from_input(e, part))?;
-    }
+    describe_input(&st, pipeline, &params, bytes, &asset, part).await?;
     touch_asset(&st, &asset).await?;
 
     let input = InputRef {
@@ -223,6 +213,27 @@ pub(super) async fn input_bytes(
             )
         }
     })
+}
+
+/// Decodes the input on the blocking pool, mapping a corrupt, unsupported or oversize file to its
+/// 4xx (named after the input `part`), and describes it (see `PipelineSet::describe_input`).
+pub(super) async fn describe_input(
+    st: &AppState,
+    pipeline: &'static str,
+    params: &serde_json::Value,
+    bytes: bytes::Bytes,
+    asset: &crate::store::assets::AssetRecord,
+    part: &'static str,
+) -> Result<serde_json::Value, ApiError> {
+    let p = params.clone();
+    let filename = asset.filename.clone();
+    let pipelines = st.jobs.pipelines().clone();
+    tokio::task::spawn_blocking(move || {
+        pipelines.describe_input(pipeline, &p, &bytes, filename.as_deref())
+    })
+    .await
+    .map_err(blocking_err)?
+    .map_err(|e| ApiError::from_input(e, part))
 }
 
 /// Refreshes the asset's retention clock.

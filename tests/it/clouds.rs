@@ -4,7 +4,7 @@
 
 use serde_json::{json, Value};
 
-use crate::common::{problem, Server};
+use crate::common::{npy_f32, problem, Server};
 use crate::openapi::{checked, spec};
 
 /// A 32³ cumulus-like blob: a dense round core with a smaller bump on top, as NumPy `.npy`
@@ -23,17 +23,7 @@ pub(crate) fn blob_npy() -> Vec<u8> {
             }
         }
     }
-    use npyz::WriterBuilder;
-    let mut out = Vec::new();
-    let mut w = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[n as u64, n as u64, n as u64])
-        .writer(&mut out)
-        .begin_nd()
-        .unwrap();
-    w.extend(data).unwrap();
-    w.finish().unwrap();
-    out
+    npy_f32(&[n as u64; 3], data)
 }
 
 const VIEW: (u32, u32) = (96, 72);
@@ -360,15 +350,7 @@ async fn scenes_survive_a_restart() {
     let dir = s.stop().await;
 
     let s = Server::start_in(dir, |_| {}).await;
-    let scene: Value = s
-        .client
-        .get(s.url(&format!("/v1/clouds/{id}")))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let scene = s.get_json(&format!("/v1/clouds/{id}")).await;
     assert_eq!(scene["versions"].as_array().unwrap().len(), 2);
     assert_eq!(scene["versions"][1]["ambient_field"], v["ambient_field"]);
     // The stored field still renders.

@@ -260,8 +260,13 @@ impl Server {
     }
 
     pub async fn job(&self, id: &str) -> Value {
+        self.get_json(&format!("/v1/jobs/{id}")).await
+    }
+
+    /// `GET path` as JSON (any status).
+    pub async fn get_json(&self, path: &str) -> Value {
         self.client
-            .get(self.url(&format!("/v1/jobs/{id}")))
+            .get(self.url(path))
             .send()
             .await
             .unwrap()
@@ -317,4 +322,19 @@ pub fn data(rel: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data")
         .join(rel)
+}
+
+/// A float32 NumPy `.npy` file of `shape` (C order).
+pub fn npy_f32(shape: &[u64], data: Vec<f32>) -> Vec<u8> {
+    use npyz::WriterBuilder;
+    let mut out = Vec::new();
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(shape)
+        .writer(&mut out)
+        .begin_nd()
+        .unwrap();
+    w.extend(data).unwrap();
+    w.finish().unwrap();
+    out
 }

@@ -65,17 +65,7 @@ fn synthetic_npy() -> Vec<u8> {
             data.push(h);
         }
     }
-    use npyz::WriterBuilder;
-    let mut out = Vec::new();
-    let mut w = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[n as u64, n as u64])
-        .writer(&mut out)
-        .begin_nd()
-        .unwrap();
-    w.extend(data).unwrap();
-    w.finish().unwrap();
-    out
+    crate::common::npy_f32(&[n as u64, n as u64], data)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
