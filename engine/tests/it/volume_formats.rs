@@ -1093,6 +1093,10 @@ fn decode_timings() {
         "cgal_skull_ct_64.nrrd",
         "bunny_fog_density.vdb",
     ] {
+        // VOLUME_TIMING_FILE=<name> times one file (for `perf stat -e instructions` per file).
+        if std::env::var("VOLUME_TIMING_FILE").is_ok_and(|f| f != name) {
+            continue;
+        }
         let Some(b) = data(name) else { continue };
         let _ = decode(b, Some(name)).unwrap();
         let runs = 10;
