@@ -11,6 +11,8 @@
 //! in the render; taken literally (ρ > 0) P and Q would sit on that haze at the box's face.
 //! Voxels are walked exactly (3-D DDA); positions are voxel centres.
 
+use rayon::prelude::*;
+
 use super::{EditError, SunDirectionEdit};
 use crate::cloud::grid::GridFrame;
 use crate::cloud::state::CloudState;
@@ -47,10 +49,16 @@ fn first_cloud(
     hit
 }
 
-/// Finds P, Q, R and the new sun direction (no allocation).
+/// Finds P, Q, R and the new sun direction (no allocation; one pass over the densities for
+/// their maximum).
 pub fn drag(volume: &Volume, base: &CloudState, e: &SunDirectionEdit) -> Result<Drag, EditError> {
     let g = GridFrame::of(volume);
-    let (_, max, _) = volume.stats();
+    // Max only (Volume::stats also sums in f64: 3× the time on 256³).
+    let max = volume
+        .density
+        .par_chunks(1 << 16)
+        .map(|c| c.iter().fold(0f32, |m, &v| m.max(v)))
+        .reduce(|| 0.0, f32::max);
     let min = DENSITY_THRESHOLD * max;
     let camera = e.view.camera(volume.bounds);
     let rg = camera.ray_gen(e.view.width, e.view.height);
