@@ -3,7 +3,7 @@
 //!
 //! - [`state`]: a version's parameters ([`CloudState`], `state.json`) and the per-voxel ambient
 //!   field ([`AmbientField`]).
-//! - [`light`]: the sun transmittance on the grid, once per light direction (slice sweep).
+//! - [`light`]: the sun transmittance on the grid, once per light direction (sheared line sweep).
 //! - [`march`]: the camera-ray march of paper Eqs. 1–3, with the linear layers Ī and A.
 //! - [`params`], [`run`]: the one-shot `cloud` pipeline.
 //! - [`edit`]: sun colour from paint (§3.1), ambient from paint (§3.2, propagated by
