@@ -216,6 +216,29 @@ function pipelineTab(panel, name, spec) {
   const { form, values } = buildForm(schema, () => schedule());
   quick.addEventListener("change", () => schedule());
 
+  // A parameter sweep (snow-terrain's `sweep`): one numeric parameter over a list of values,
+  // rendered into sweep.png beside the render.
+  let sweep = null;
+  const sweepProp = schema.properties.sweep;
+  if (sweepProp) {
+    const param = el("select", { id: `sweep-${name}-param` },
+      el("option", { value: "" }, "(no sweep)"),
+      sweepProp.properties.param.enum.map((v) => el("option", { value: v }, v)));
+    const vals = el("input", { type: "text", id: `sweep-${name}-values`, placeholder: "e.g. 1000, 5000, 20000", inputmode: "decimal" });
+    param.addEventListener("change", () => schedule());
+    vals.addEventListener("change", () => schedule());
+    sweep = {
+      box: el("fieldset", { class: "field" }, el("legend", {}, "Parameter sweep"),
+        el("label", { for: param.id }, "param"), param,
+        el("label", { for: vals.id }, `values (${sweepProp.properties.values.minItems}–${sweepProp.properties.values.maxItems}, comma-separated)`), vals,
+        el("span", { class: "desc" }, sweepProp.description)),
+      value() {
+        const v = vals.value.split(/[,\s]+/).filter(Boolean).map(Number);
+        return param.value && v.length >= 2 && v.every(Number.isFinite) ? { param: param.value, values: v } : undefined;
+      },
+    };
+  }
+
   function params() {
     const p = values();
     if (quick.checked) {
@@ -226,6 +249,8 @@ function pipelineTab(panel, name, spec) {
       p.height = Math.max(16, Math.round(h * k));
     }
     if (state.camera) p.camera = { ...state.camera };
+    const sw = sweep && sweep.value();
+    if (sw) p.sweep = sw;
     return p;
   }
 
@@ -334,6 +359,7 @@ function pipelineTab(panel, name, spec) {
     el("div", { class: "layout" },
       el("div", {}, input,
         el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
+        sweep ? sweep.box : null,
         form),
       el("div", {}, bar, status, views, downloads)));
 }
