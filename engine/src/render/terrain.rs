@@ -1005,9 +1005,10 @@ struct Shader<'s, 'a> {
     /// Per-grid-point gradients (dh/dx, dh/dz) precomputed by the raster path; `None` =
     /// computed per hit.
     grads: Option<&'s [[f64; 2]]>,
-    /// The DEM has nodata points. Without them a miss is always the sky: a ray that enters the
-    /// footprint above the edge and sinks below the lowest height crosses the (continuous)
-    /// surface, so it is a hit, and [`TerrainAccel::through_footprint`] can be skipped.
+    /// The DEM has nodata points. Without them a miss is drawn as the sky without
+    /// [`TerrainAccel::through_footprint`]: a ray that enters the footprint above the edge and
+    /// sinks below the lowest height crosses the (continuous) surface, so it is a hit — up to
+    /// rays that graze the DEM's edge within rounding (one pixel of the paper case changed).
     holes: bool,
 }
 
@@ -1502,13 +1503,16 @@ impl Px {
     }
 }
 
+/// The raster path's sample shader: [`raster::ShadeFn`] returning the hit cell too.
+type TerrainShadeFn<'a> = dyn Fn(Option<&raster::Fragment>, f64, f64, usize) -> Px + Sync + 'a;
+
 /// [`raster::render_adaptive`] with the terrain's anti-aliasing test ([`Px::differs`]): the
 /// same bands, visibility buffers, sample pattern and pixel average; only the refinement
 /// decision differs, so the ray caster and the raster path refine the same pixels.
 fn raster_adaptive(
     rast: &Rasterizer,
     samples: u32,
-    shade: &(dyn Fn(Option<&raster::Fragment>, f64, f64, usize) -> Px + Sync),
+    shade: &TerrainShadeFn,
     ctl: &dyn Control,
     band_done: &(dyn Fn() + Sync),
 ) -> Result<RgbaImage, Canceled> {
@@ -1609,7 +1613,7 @@ fn sweep_axis(sun: [f64; 3]) -> Option<SweepAxis> {
     const AXIS: f64 = 1e-12;
     let (sx, sz) = (sun[0], sun[2]);
     let hor = (sx * sx + sz * sz).sqrt();
-    if !(sun[1] > 0.0) || !hor.is_finite() {
+    if sun[1].is_nan() || sun[1] <= 0.0 || !hor.is_finite() {
         return None;
     }
     if hor <= AXIS * sun[1] {
