@@ -166,6 +166,9 @@ function buildForm(schema, onChange) {
           prop.enum.map((v) => el("option", { value: v, selected: v === prop.default }, v)));
         get = () => (input.value === "" ? undefined : input.value);
       } else if (type === "string" && prop.pattern && prop.pattern.includes("#")) {
+        // A colour with no default (cloud `background`: absent = transparent) has no
+        // "unset" state in a colour picker; leave it to the API.
+        if (prop.default === undefined) continue;
         input = el("input", { type: "color", id, name, value: prop.default || "#000000", "aria-describedby": `${id}-d` });
         get = () => input.value;
       } else if (type === "integer" || type === "number") {
