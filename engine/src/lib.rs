@@ -6,6 +6,7 @@
 
 pub mod cloud;
 pub mod control;
+pub mod dust;
 pub mod error;
 pub mod formats;
 pub mod geom;

@@ -5,6 +5,7 @@
 mod cloud;
 mod cloud_edit;
 mod descriptor;
+mod dust;
 mod formats;
 mod gltf_validator;
 mod golden;
