@@ -74,7 +74,7 @@
 //! `samples` rays on a rotated-grid pattern (4 = the classic RGSS; other counts an n-rooks pattern
 //! with a rotated-grid stride) to pixels whose centre sample differs from a 4-neighbour's — another
 //! kind (terrain, sky, hole), a depth jump, or a visible colour step between centres that lie
-//! more than one cell apart ([`Key::differs`]) — and averages them with the centre in linear RGB,
+//! more than one cell apart ([`Px::differs`]) — and averages them with the centre in linear RGB,
 //! premultiplied by coverage. Smooth interiors cost one ray per pixel; silhouettes, the horizon
 //! and sub-pixel detail get `samples + 1`. A colour step between centres in the same or adjacent
 //! cells is a shading gradient of the (bilinear, continuous) surface, not an edge: super-sampling
@@ -1005,6 +1005,11 @@ struct Shader<'s, 'a> {
     /// Per-grid-point gradients (dh/dx, dh/dz) precomputed by the raster path; `None` =
     /// computed per hit.
     grads: Option<&'s [[f64; 2]]>,
+    /// The DEM has nodata points. Without them a miss is drawn as the sky without
+    /// [`TerrainAccel::through_footprint`]: a ray that enters the footprint above the edge and
+    /// sinks below the lowest height crosses the (continuous) surface, so it is a hit — up to
+    /// rays that graze the DEM's edge within rounding (one pixel of the paper case changed).
+    holes: bool,
 }
 
 impl Shader<'_, '_> {
@@ -1019,7 +1024,7 @@ impl Shader<'_, '_> {
     /// A ray that hit nothing: transparent through a hole, else the sky.
     #[inline]
     fn miss(&self, dir: [f64; 3], y_frac: f32) -> Sample {
-        if self.accel.through_footprint(self.eye, dir, 0.0) {
+        if self.holes && self.accel.through_footprint(self.eye, dir, 0.0) {
             return Sample {
                 c: [0.0; 3],
                 a: 0.0,
@@ -1227,6 +1232,7 @@ pub fn render_with_path(
         eps,
         sun_map: sun_map.as_deref(),
         grads: None,
+        holes: sc.heights.par_iter().any(|v| v.is_nan()),
     };
     if raster {
         let s = RasterSetup {
@@ -1278,8 +1284,7 @@ pub fn render_with_path(
                 let y_frac = ((y + 0.5) / h as f64) as f32;
                 for (x, px) in row.chunks_exact_mut(4).enumerate() {
                     let p0 = &centre[yi * w + x];
-                    let k0 = Key::of(p0);
-                    let differs = |k: usize| k0.differs(&Key::of(&centre[k]));
+                    let differs = |k: usize| p0.differs(&centre[k]);
                     let refine = ns > 1
                         && ((x > 0 && differs(yi * w + x - 1))
                             || (x + 1 < w && differs(yi * w + x + 1))
@@ -1395,6 +1400,13 @@ fn render_raster(
     let shade = |f: Option<&raster::Fragment>, x: f64, y: f64, row: usize| -> Px {
         let y_frac = ((row as f64 + 0.5) * inv_h) as f32;
         let Some(f) = f else {
+            if !shader.holes {
+                return Px::background(Sample {
+                    c: shader.sky(y_frac),
+                    a: 1.0,
+                    t: f32::INFINITY,
+                });
+            }
             return Px::background(shader.miss(gen.dir(x, y), y_frac));
         };
         let cell = f.triangle as usize / 2;
@@ -1432,7 +1444,7 @@ fn render_raster(
 }
 
 /// A shaded sample and the cell it hit (`u32::MAX` for the background), for the
-/// anti-aliasing test [`Key::differs`].
+/// anti-aliasing test [`Px::differs`].
 #[derive(Debug, Clone, Copy, Default)]
 struct Px {
     s: Sample,
@@ -1460,28 +1472,7 @@ impl Px {
     }
 }
 
-/// What the anti-aliasing test compares of a centre sample, the square roots taken once.
-#[derive(Debug, Clone, Copy, Default)]
-struct Key {
-    a: f32,
-    t: f32,
-    g: [f32; 3],
-    col: u32,
-    row: u32,
-}
-
-impl Key {
-    #[inline]
-    fn of(p: &Px) -> Self {
-        Self {
-            a: p.s.a,
-            t: p.s.t,
-            g: p.s.c.map(|v| v.max(0.0).sqrt()),
-            col: p.col,
-            row: p.row,
-        }
-    }
-
+impl Px {
     /// True when a pixel whose centre is `self` needs super-sampling because of its neighbour
     /// `o`: another kind (surface / background / transparent), a depth jump over 3 %, or —
     /// unless both centres lie in the same or adjacent cells — a colour step over ~6/255 in a
@@ -1494,29 +1485,34 @@ impl Key {
     /// centres are cells apart (sub-pixel terrain detail) the colour test still applies.
     /// Measured on the paper case (400×200 → 900×600): refined pixels … (see the module doc).
     #[inline]
-    fn differs(&self, o: &Key) -> bool {
-        if self.a != o.a || self.t.is_finite() != o.t.is_finite() {
+    fn differs(&self, o: &Px) -> bool {
+        let (p, q) = (&self.s, &o.s);
+        if p.a != q.a || p.t.is_finite() != q.t.is_finite() {
             return true;
         }
-        if self.t.is_finite() {
-            if (self.t - o.t).abs() > 0.03 * self.t.min(o.t) {
+        if p.t.is_finite() {
+            if (p.t - q.t).abs() > 0.03 * p.t.min(q.t) {
                 return true;
             }
             if self.col.abs_diff(o.col) <= 1 && self.row.abs_diff(o.row) <= 1 {
                 return false;
             }
         }
-        (0..3).any(|ch| (self.g[ch] - o.g[ch]).abs() > 0.025)
+        // Square roots only here: most neighbours are decided above.
+        (0..3).any(|ch| (p.c[ch].max(0.0).sqrt() - q.c[ch].max(0.0).sqrt()).abs() > 0.025)
     }
 }
 
-/// [`raster::render_adaptive`] with the terrain's anti-aliasing test ([`Key::differs`]): the
+/// The raster path's sample shader: [`raster::ShadeFn`] returning the hit cell too.
+type TerrainShadeFn<'a> = dyn Fn(Option<&raster::Fragment>, f64, f64, usize) -> Px + Sync + 'a;
+
+/// [`raster::render_adaptive`] with the terrain's anti-aliasing test ([`Px::differs`]): the
 /// same bands, visibility buffers, sample pattern and pixel average; only the refinement
 /// decision differs, so the ray caster and the raster path refine the same pixels.
 fn raster_adaptive(
     rast: &Rasterizer,
     samples: u32,
-    shade: &(dyn Fn(Option<&raster::Fragment>, f64, f64, usize) -> Px + Sync),
+    shade: &TerrainShadeFn,
     ctl: &dyn Control,
     band_done: &(dyn Fn() + Sync),
 ) -> Result<RgbaImage, Canceled> {
@@ -1544,14 +1540,8 @@ fn raster_adaptive(
         .par_chunks_mut(w * 4 * band)
         .enumerate()
         .try_for_each_init(
-            || {
-                (
-                    raster::VisBuffer::default(),
-                    Vec::<Px>::new(),
-                    Vec::<Key>::new(),
-                )
-            },
-            |(vis, centre, keys), (b, out)| {
+            || (raster::VisBuffer::default(), Vec::<Px>::new()),
+            |(vis, centre), (b, out)| {
                 ctl.checkpoint()?;
                 let (c0, c1) = (b * band, ((b + 1) * band).min(h));
                 let (y0, y1) = (c0.saturating_sub(1), (c1 + 1).min(h));
@@ -1567,9 +1557,7 @@ fn raster_adaptive(
                         centre.push(shade(f.as_ref(), sx, sy, y));
                     }
                 }
-                keys.clear();
-                keys.extend(centre.iter().map(Key::of));
-                let at = |x: usize, y: usize| &keys[(y - y0) * w + x];
+                let at = |x: usize, y: usize| &centre[(y - y0) * w + x];
                 for (ry, row) in out.chunks_mut(w * 4).enumerate() {
                     let y = c0 + ry;
                     for (x, px) in row.chunks_exact_mut(4).enumerate() {
@@ -1625,7 +1613,7 @@ fn sweep_axis(sun: [f64; 3]) -> Option<SweepAxis> {
     const AXIS: f64 = 1e-12;
     let (sx, sz) = (sun[0], sun[2]);
     let hor = (sx * sx + sz * sz).sqrt();
-    if !(sun[1] > 0.0) || !hor.is_finite() {
+    if sun[1].is_nan() || sun[1] <= 0.0 || !hor.is_finite() {
         return None;
     }
     if hor <= AXIS * sun[1] {

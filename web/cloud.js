@@ -1,0 +1,274 @@
+// The cloud editor (SPEC §3, "Editing"): a scene kept on the server, edited on the image of a
+// view with the paper's three modes — a sun-colour brush (§3.1), an ambient brush (§3.2) and a
+// shadow drag (§3.3) — plus camera orbit and a version history whose undo/redo selects versions
+// (versions are immutable on the server; undo is rendering or editing an older one).
+
+import { $, el, problem, uploadAsset, followJob, inputBox } from "./app.js";
+
+/** The size of the edited view, pixels (edits are sent with this view). */
+const VIEW_W = 400;
+const VIEW_H = 300;
+/** Brush radius in image pixels. */
+const BRUSH = 4;
+/** At most this many painted pixels per stroke. */
+const MAX_PIXELS = 4000;
+
+export function initEditor(panel, spec) {
+  const cam = spec.components.schemas.Camera.properties;
+  const st = {
+    scene: null,
+    current: null,
+    redo: [],
+    camera: { azimuth_deg: cam.azimuth_deg.default, elevation_deg: 12 },
+    tool: "sun-color",
+    busy: false,
+  };
+  const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const bar = el("progress", { max: 1, value: 0, "aria-label": "cloud editor progress" });
+  const img = el("img", { alt: "The current version of the cloud", width: VIEW_W, height: VIEW_H, id: "editor-image" });
+  const canvas = el("canvas", { width: VIEW_W, height: VIEW_H, tabindex: 0, "aria-label": "Paint or drag on the cloud with the selected tool; arrow keys orbit the camera" });
+  const ctx = canvas.getContext("2d");
+  const versions = el("ul", { class: "versions", "aria-label": "Versions" });
+  const count = el("span", { id: "version-count" }, "0");
+  const stateBox = el("pre", { class: "state", "aria-label": "Renderer state of the current version" });
+  const sunColor = el("input", { type: "color", id: "sun-color", value: "#ffa060" });
+  const ambColor = el("input", { type: "color", id: "ambient-color", value: "#4060ff" });
+  const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo }, "Undo");
+  const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo }, "Redo");
+  const error = (m) => { status.textContent = m; status.classList.add("error"); };
+  const note = (m) => { status.textContent = m; status.classList.remove("error"); };
+
+  const tool = (value, label, extra) => {
+    const id = `tool-${value}`;
+    const r = el("input", { type: "radio", name: "tool", id, value, checked: value === st.tool, onchange: () => { st.tool = value; } });
+    return el("span", {}, r, " ", el("label", { for: id }, label), extra ? [" ", extra] : []);
+  };
+
+  const view = () => ({ width: VIEW_W, height: VIEW_H, camera: { ...st.camera } });
+  const version = (n) => st.scene && st.scene.versions.find((v) => v.version === n);
+
+  async function refresh() {
+    const r = await fetch(st.scene.url);
+    if (!r.ok) return error(await problem(r));
+    st.scene = await r.json();
+    versions.replaceChildren(...st.scene.versions.map((v) => el("li", {},
+      el("button", {
+        type: "button", "aria-current": v.version === st.current ? "true" : undefined,
+        disabled: v.status !== "ready", onclick: () => select(v.version, true),
+      }, `v${v.version} · ${v.kind}${v.parent ? ` (from v${v.parent})` : ""} · ${v.status}`))));
+    count.textContent = String(st.scene.versions.length);
+    panel.dataset.versions = String(st.scene.versions.length);
+    panel.dataset.current = String(st.current);
+    const cur = version(st.current);
+    stateBox.textContent = cur && cur.state ? JSON.stringify(cur.state, null, 1) : "";
+    undoBtn.disabled = !(cur && cur.parent);
+    redoBtn.disabled = st.redo.length === 0;
+  }
+
+  async function job(resp) {
+    const j = await resp.json();
+    const f = followJob(j, (p, stage) => {
+      bar.value = p;
+      note(`${stage} — ${Math.round(p * 100)} %`);
+    });
+    return f.job;
+  }
+
+  function showImage(url) {
+    img.src = url;
+    panel.dataset.image = url;
+    ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+  }
+
+  async function render() {
+    st.busy = true;
+    panel.dataset.busy = "true";
+    try {
+      const r = await fetch(`${st.scene.url}/renders`, {
+        method: "POST",
+        headers: { "content-type": "application/json" },
+        body: JSON.stringify({ version: st.current, ...view() }),
+      });
+      if (!r.ok) return error(await problem(r));
+      const done = await job(r);
+      if (done.status !== "succeeded") return error(done.error ? done.error.detail : `render ${done.status}`);
+      const out = done.outputs.find((o) => o.name === "render.png");
+      showImage(out.url);
+      note(`Showing v${st.current}.`);
+    } finally {
+      st.busy = false;
+      await refresh();
+      panel.dataset.busy = "false";
+    }
+  }
+
+  async function select(n, clearRedo) {
+    if (clearRedo) st.redo = [];
+    st.current = n;
+    await refresh();
+    await render();
+  }
+
+  async function undo() {
+    const cur = version(st.current);
+    if (!cur || !cur.parent || st.busy) return;
+    st.redo.push(st.current);
+    await select(cur.parent, false);
+  }
+
+  async function redo() {
+    if (!st.redo.length || st.busy) return;
+    await select(st.redo.pop(), false);
+  }
+
+  async function edit(kind, body) {
+    st.busy = true;
+    panel.dataset.busy = "true";
+    try {
+      note(`Editing (${kind})…`);
+      const r = await fetch(`${st.scene.url}/edits/${kind}`, {
+        method: "POST",
+        headers: { "content-type": "application/json" },
+        body: JSON.stringify({ base_version: st.current, ...view(), ...body }),
+      });
+      if (!r.ok) return error(await problem(r));
+      const v = await r.json();
+      const jr = await fetch(v.job_url);
+      if (jr.ok) await job(jr);
+      const r2 = await fetch(st.scene.url);
+      st.scene = await r2.json();
+      const nv = version(v.version);
+      if (!nv || nv.status !== "ready") {
+        error(nv && nv.error ? `The edit failed: ${nv.error.detail}` : "The edit failed.");
+        ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+        return;
+      }
+      st.current = nv.version;
+      st.redo = [];
+      showImage(nv.render_url);
+      note(`v${nv.version} (${kind}) is ready.`);
+    } finally {
+      st.busy = false;
+      await refresh();
+      panel.dataset.busy = "false";
+    }
+  }
+
+  // Pointer input on the overlay, in image pixels.
+  const at = (e) => {
+    const b = canvas.getBoundingClientRect();
+    return [
+      Math.max(0, Math.min(VIEW_W - 1, ((e.clientX - b.left) / b.width) * VIEW_W)),
+      Math.max(0, Math.min(VIEW_H - 1, ((e.clientY - b.top) / b.height) * VIEW_H)),
+    ];
+  };
+  let drag = null;
+  const paint = (p) => {
+    const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
+    ctx.fillStyle = color + "aa";
+    const steps = drag.last ? Math.ceil(Math.hypot(p[0] - drag.last[0], p[1] - drag.last[1])) + 1 : 1;
+    for (let s = 0; s < steps; s++) {
+      const t = steps === 1 ? 1 : s / (steps - 1);
+      const q = drag.last ? [drag.last[0] + (p[0] - drag.last[0]) * t, drag.last[1] + (p[1] - drag.last[1]) * t] : p;
+      ctx.beginPath();
+      ctx.arc(q[0], q[1], BRUSH, 0, 2 * Math.PI);
+      ctx.fill();
+      for (let dy = -BRUSH; dy <= BRUSH; dy++) {
+        for (let dx = -BRUSH; dx <= BRUSH; dx++) {
+          if (dx * dx + dy * dy > BRUSH * BRUSH) continue;
+          const x = Math.round(q[0]) + dx;
+          const y = Math.round(q[1]) + dy;
+          if (x < 0 || y < 0 || x >= VIEW_W || y >= VIEW_H || drag.pixels.size >= MAX_PIXELS) continue;
+          drag.pixels.add(y * VIEW_W + x);
+        }
+      }
+    }
+    drag.last = p;
+  };
+  canvas.addEventListener("pointerdown", (e) => {
+    if (!st.scene || st.busy) return;
+    e.preventDefault();
+    canvas.setPointerCapture(e.pointerId);
+    drag = { start: at(e), last: null, pixels: new Set(), client: [e.clientX, e.clientY] };
+    if (st.tool === "sun-color" || st.tool === "ambient") paint(drag.start);
+  });
+  canvas.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    const p = at(e);
+    if (st.tool === "sun-color" || st.tool === "ambient") paint(p);
+    else if (st.tool === "sun-direction") {
+      ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+      ctx.strokeStyle = "#ff3030";
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.moveTo(drag.start[0], drag.start[1]);
+      ctx.lineTo(p[0], p[1]);
+      ctx.stroke();
+    }
+  });
+  canvas.addEventListener("pointerup", (e) => {
+    if (!drag) return;
+    const d = drag;
+    drag = null;
+    const p = at(e);
+    if (st.tool === "sun-color" || st.tool === "ambient") {
+      const pixels = [...d.pixels].map((i) => [i % VIEW_W, Math.floor(i / VIEW_W)]);
+      const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
+      edit(st.tool, { strokes: [{ color, pixels }] });
+    } else if (st.tool === "sun-direction") {
+      if (Math.hypot(p[0] - d.start[0], p[1] - d.start[1]) < 2) return;
+      edit("sun-direction", { from: d.start.map(Math.round), to: p.map(Math.round) });
+    } else {
+      turn(-(e.clientX - d.client[0]) * 0.5, (e.clientY - d.client[1]) * 0.3);
+      render();
+    }
+  });
+  canvas.addEventListener("keydown", (e) => {
+    const d = { ArrowLeft: [-10, 0], ArrowRight: [10, 0], ArrowUp: [0, 5], ArrowDown: [0, -5] }[e.key];
+    if (!d || !st.scene || st.busy) return;
+    e.preventDefault();
+    turn(d[0], d[1]);
+    render();
+  });
+  function turn(dAz, dEl) {
+    st.camera = {
+      azimuth_deg: ((st.camera.azimuth_deg + dAz) % 360 + 360) % 360,
+      elevation_deg: Math.max(-89, Math.min(89, st.camera.elevation_deg + dEl)),
+    };
+  }
+
+  const input = inputBox("density volume (.npy, NRRD, .vdb)", "volume.npy", async (asset) => {
+    note("Creating the scene…");
+    const r = await fetch("/v1/clouds", {
+      method: "POST",
+      headers: { "content-type": "application/json" },
+      body: JSON.stringify({ asset: asset.id }),
+    });
+    if (!r.ok) return error(await problem(r));
+    st.scene = await r.json();
+    st.redo = [];
+    panel.dataset.scene = st.scene.id;
+    await select(1, true);
+  }, error);
+
+  panel.append(
+    el("h2", {}, "Cloud editor"),
+    el("p", {}, "Create a scene from a volume, then edit it on the image: paint where the sunlit cloud should take a colour (the sun colour follows by least squares), paint ambient colour into the shadows, or drag from a shadowed spot to where its shadow should be (the sun moves). Every edit is a new version; undo selects an older one."),
+    el("div", { class: "layout" },
+      el("div", {}, input,
+        el("h3", {}, "Versions (", count, ")"),
+        el("div", { class: "toolbar" }, undoBtn, redoBtn),
+        versions,
+        el("h3", {}, "State"), stateBox),
+      el("div", {},
+        el("div", { class: "toolbar" },
+          el("fieldset", {}, el("legend", {}, "Tool"),
+            tool("sun-color", "Sun-colour brush", sunColor),
+            tool("ambient", "Ambient brush", ambColor),
+            tool("sun-direction", "Shadow drag"),
+            tool("orbit", "Orbit camera"))),
+        bar, status,
+        el("div", { class: "stage" }, img, canvas))));
+  $("#sun-color", panel).setAttribute("aria-label", "Sun colour");
+  $("#ambient-color", panel).setAttribute("aria-label", "Ambient colour");
+}
