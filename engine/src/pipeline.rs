@@ -271,6 +271,23 @@ fn volume_options(
     }
 }
 
+/// Decodes a cloud volume. Its world box is the user's `bounds` or SPEC §3's default, the unit
+/// cube scaled to the grid's aspect — not the box the file's own geometry implies (an NRRD's
+/// spacings, an OpenVDB transform): κ is per world unit, so a file in centimetres or in voxel
+/// units would otherwise make the same κ mean wildly different clouds. The file's box is still
+/// reported by the decoders for those who pass it as `bounds`.
+fn cloud_volume(
+    bytes: &[u8],
+    filename: Option<&str>,
+    opts: &VolumeOptions,
+) -> Result<Volume, InputError> {
+    let mut volume = decode_volume(bytes, filename, opts)?;
+    if opts.bounds.is_none() {
+        volume.bounds = Volume::default_bounds(volume.dims);
+    }
+    Ok(volume)
+}
+
 fn ambient_field(
     aux: &[(String, Vec<u8>)],
     volume: &Volume,
@@ -316,7 +333,7 @@ pub fn decode_with_aux(
         }
         Params::Cloud(p) => {
             let opts = volume_options(p.bounds().map(|(lo, hi)| [lo, hi]), p.dims(), limits);
-            let volume = decode_volume(bytes, filename, &opts)?;
+            let volume = cloud_volume(bytes, filename, &opts)?;
             let ambient = ambient_field(aux, &volume)?;
             Ok(Job::Cloud {
                 params: p,
@@ -325,7 +342,7 @@ pub fn decode_with_aux(
             })
         }
         Params::CloudEdit(p) => {
-            let volume = decode_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))?;
+            let volume = cloud_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))?;
             let ambient = ambient_field(aux, &volume)?;
             Ok(Job::CloudEdit {
                 params: p,

@@ -6,5 +6,6 @@ pub mod geotiff_write;
 pub mod glb;
 pub mod mesh;
 pub mod mesh_glb;
+pub(crate) mod npy_header;
 pub mod png_write;
 pub mod volume;

@@ -4,6 +4,7 @@
 
 mod cloud;
 mod cloud_edit;
+mod cloud_pipeline;
 mod descriptor;
 mod dust;
 mod formats;

@@ -28,59 +28,21 @@ fn corrupt(detail: impl std::fmt::Display) -> InputError {
     }
 }
 
-/// Shape tuple from the header dictionary text, checking that its product (ignoring zero
-/// dimensions) fits in `u64`. `None` when the text has no readable shape.
-fn shape_from_header_text(bytes: &[u8]) -> Result<Option<Vec<u64>>, InputError> {
-    // Magic (6) + version (2) + header length (2 for v1, 4 for v2/v3).
-    let (len, start): (usize, usize) = match bytes.get(6) {
-        Some(1) => match bytes.get(8..10) {
-            Some(l) => (usize::from(u16::from_le_bytes([l[0], l[1]])), 10),
-            None => return Err(corrupt("truncated header")),
-        },
-        Some(2 | 3) => match bytes.get(8..12) {
-            Some(l) => (u32::from_le_bytes([l[0], l[1], l[2], l[3]]) as usize, 12),
-            None => return Err(corrupt("truncated header")),
-        },
-        _ => return Err(corrupt("unknown .npy version")),
-    };
-    let text = bytes
-        .get(start..start.saturating_add(len))
-        .ok_or_else(|| corrupt("truncated header"))?;
-    let text = String::from_utf8_lossy(text);
-    let Some(at) = text.find("'shape'").or_else(|| text.find("\"shape\"")) else {
-        return Ok(None);
-    };
-    let after = &text[at..];
-    let (Some(open), Some(close)) = (after.find('('), after.find(')')) else {
-        return Ok(None);
-    };
-    if close < open {
-        return Ok(None);
-    }
-    let mut dims = Vec::new();
-    for part in after[open + 1..close].split(',') {
-        let p = part.trim().trim_end_matches('L');
-        if p.is_empty() {
-            continue;
-        }
-        match p.parse::<u64>() {
-            Ok(d) => dims.push(d),
-            Err(_) => return Err(corrupt(format!("shape entry {p:?} is not a size"))),
-        }
-    }
-    let mut product: u64 = 1;
-    for &d in dims.iter().filter(|&&d| d != 0) {
-        product = product.checked_mul(d).ok_or(InputError::TooLarge {
-            what: "NPY elements",
-            actual: u64::MAX,
-            max: u64::MAX,
-        })?;
-    }
-    Ok(Some(dims))
-}
-
 pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError> {
-    if let Some(dims) = shape_from_header_text(bytes)? {
+    if let Some(dims) = crate::formats::npy_header::header_shape(bytes, FORMAT)? {
+        // A shape whose product (zero dimensions aside) overflows is refused before npyz
+        // multiplies it out.
+        let product = dims
+            .iter()
+            .filter(|&&d| d != 0)
+            .try_fold(1u64, |acc, &d| acc.checked_mul(d));
+        if product.is_none() {
+            return Err(InputError::TooLarge {
+                what: "NPY elements",
+                actual: u64::MAX,
+                max: u64::MAX,
+            });
+        }
         if dims.len() == 2 {
             check_cells(dims[1], dims[0], opts.max_cells)?;
         }

@@ -24,49 +24,6 @@ fn corrupt(detail: impl std::fmt::Display) -> InputError {
         detail: detail.to_string(),
     }
 }
-
-/// The `shape` tuple from the header dictionary, or `None` when the text has none (npyz then
-/// reports the header error).
-fn header_shape(bytes: &[u8]) -> Result<Option<Vec<u64>>, InputError> {
-    // Magic (6) + version (2) + header length (u16 for v1, u32 for v2/v3).
-    let truncated = || corrupt("truncated header");
-    let (len, start): (usize, usize) = match bytes.get(6) {
-        Some(1) => {
-            let l = bytes.get(8..10).ok_or_else(truncated)?;
-            (usize::from(u16::from_le_bytes([l[0], l[1]])), 10)
-        }
-        Some(2 | 3) => {
-            let l = bytes.get(8..12).ok_or_else(truncated)?;
-            (u32::from_le_bytes([l[0], l[1], l[2], l[3]]) as usize, 12)
-        }
-        _ => return Err(corrupt("unknown .npy version")),
-    };
-    let text = bytes
-        .get(start..start.saturating_add(len))
-        .ok_or_else(|| corrupt("truncated header"))?;
-    let text = String::from_utf8_lossy(text);
-    let Some(at) = text.find("'shape'").or_else(|| text.find("\"shape\"")) else {
-        return Ok(None);
-    };
-    let after = &text[at..];
-    let (Some(open), Some(close)) = (after.find('('), after.find(')')) else {
-        return Ok(None);
-    };
-    if close < open {
-        return Ok(None);
-    }
-    after[open + 1..close]
-        .split(',')
-        .map(|p| p.trim().trim_end_matches('L'))
-        .filter(|p| !p.is_empty())
-        .map(|p| {
-            p.parse::<u64>()
-                .map_err(|_| corrupt(format!("shape entry {p:?} is not a size")))
-        })
-        .collect::<Result<Vec<_>, _>>()
-        .map(Some)
-}
-
 fn not_3d(shape: &[u64]) -> InputError {
     InputError::Unusable(format!(
         "the .npy array has shape {shape:?}; a density volume is a 3-D array (nz, ny, nx)"
@@ -74,7 +31,7 @@ fn not_3d(shape: &[u64]) -> InputError {
 }
 
 pub(super) fn decode(bytes: &[u8], opts: &VolumeOptions) -> Result<Decoded, InputError> {
-    if let Some(shape) = header_shape(bytes)? {
+    if let Some(shape) = crate::formats::npy_header::header_shape(bytes, FORMAT)? {
         let &[nz, ny, nx] = &shape[..] else {
             return Err(not_3d(&shape));
         };
