@@ -150,8 +150,8 @@ impl FiberWalk {
     pub fn heading_at(&self, t: u32) -> f32 {
         self.bends
             .iter()
-            .filter(|b| b.step <= t)
-            .last()
+            .rev()
+            .find(|b| b.step <= t)
             .map_or(self.heading, |b| b.heading)
     }
 
@@ -393,8 +393,10 @@ pub fn fiber_texture(
             start[i as usize / band + 1] += 1;
         }
     }
-    for b in 0..bands {
-        start[b + 1] += start[b];
+    let mut sum = 0;
+    for s in start.iter_mut() {
+        sum += *s;
+        *s = sum;
     }
     let mut fill = start.clone();
     let mut sorted = vec![(0u32, 0.0f32); start[bands]];
