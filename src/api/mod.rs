@@ -7,6 +7,7 @@ mod dto;
 mod jobs;
 mod submit;
 mod system;
+pub mod web;
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -43,6 +44,9 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("get", "/readyz"),
     ("get", "/metrics"),
     ("get", "/openapi.yaml"),
+    ("get", "/"),
+    ("get", "/web/{file}"),
+    ("get", "/v1/examples/{name}"),
     ("post", "/v1/assets"),
     ("post", "/v1/clouds"),
     ("get", "/v1/clouds/{id}"),
@@ -64,6 +68,9 @@ pub fn app(state: AppState) -> Router {
         .route("/readyz", get(system::readyz))
         .route("/metrics", get(system::metrics))
         .route("/openapi.yaml", get(system::openapi))
+        .route("/", get(web::index))
+        .route("/web/{file}", get(web::asset))
+        .route("/v1/examples/{name}", get(web::example))
         .route("/v1/assets", post(assets::upload))
         .route("/v1/assets/{id}", get(assets::get))
         .route("/v1/clouds", post(clouds::create))

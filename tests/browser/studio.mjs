@@ -5,7 +5,7 @@
 //     SCREENSHOT_DIR=target/browser node tests/browser/studio.mjs
 //
 // Steps (screenshots of each under SCREENSHOT_DIR): the page loads; upload a DEM, change a
-// parameter, see the image change; the snow-cover example mesh runs with the progress bar
+// parameter, see the image change, orbit with the arrow keys; the snow-cover example mesh runs with the progress bar
 // reaching the end; in the cloud editor paint a sun-colour stroke (version count and image
 // change), drag a shadow (the sun direction in the state changes), undo (back to the previous
 // version and its image); download an output and check its bytes. Fails on any console error,
@@ -98,6 +98,19 @@ try {
   assert.notEqual(await hashOf(secondSrc), await hashOf(firstSrc), "the snowline changed nothing in the image");
   await shot("03-terrain-snowline");
   log("snow-terrain re-rendered on a parameter change");
+
+  // Orbit from the keyboard: the focused render turns the camera and re-renders.
+  const beforeOrbit = await st.getAttribute("data-job");
+  await st.locator("img[data-output='render.png']").focus();
+  await page.keyboard.press("ArrowRight");
+  await page.waitForFunction((j) => {
+    const p = document.getElementById("panel-snow-terrain");
+    return p.dataset.job !== j && p.dataset.status === "succeeded" && p.querySelector("img[data-output='render.png']")?.src.includes(p.dataset.job);
+  }, beforeOrbit);
+  const orbitJob = await page.evaluate(async (id) => (await fetch(`/v1/jobs/${id}`)).json(), await st.getAttribute("data-job"));
+  assert.equal(orbitJob.params.camera.azimuth_deg, 210, "ArrowRight should turn the camera 10° from the default 200°");
+  await shot("03b-terrain-orbit");
+  log("orbit re-rendered with azimuth 210°");
 
   // Download an output and check its bytes (a PNG, a GeoTIFF).
   const pngHref = await st.locator("a[download='render.png']").getAttribute("href");

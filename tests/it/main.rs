@@ -9,3 +9,4 @@ mod openapi;
 mod restart;
 mod snow_cover;
 mod snow_terrain;
+mod web;

@@ -83,9 +83,8 @@ pub fn vertex_normals(mesh: &Mesh) -> Vec<[f32; 3]> {
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let f = mesh.face_normal(t);
         for &i in tri {
-            let a = &mut acc[i as usize];
-            for k in 0..3 {
-                a[k] += f[k];
+            for (a, fk) in acc[i as usize].iter_mut().zip(f) {
+                *a += fk;
             }
         }
     }
@@ -256,11 +255,7 @@ impl ExposureScene {
 fn rotate_about(v: [f32; 3], k: [f32; 3], s: f32, c: f32) -> [f32; 3] {
     let kxv = cross(k, v);
     let kv = k[0] * v[0] + k[1] * v[1] + k[2] * v[2];
-    let mut r = [0.0; 3];
-    for i in 0..3 {
-        r[i] = v[i] * c + kxv[i] * s + k[i] * kv * (1.0 - c);
-    }
-    r
+    std::array::from_fn(|i| v[i] * c + kxv[i] * s + k[i] * kv * (1.0 - c))
 }
 
 /// Per-vertex rotation angle of the ray set about U: a hash of the vertex index mapped to

@@ -33,12 +33,12 @@
 //! **Determinism and parallelism.** Fibre j of shell i draws from its own ChaCha8 stream (key from
 //! the seed and the shell, stream number j), so a walk does not depend on any other walk. Walks
 //! are traced in parallel (rayon over fibres, each writing its own slice of one preallocated
-//! buffer), then composited per band of rows in parallel: every band replays all trail texels in
-//! fibre order and keeps those in its rows, so each texel sees the same sequence of "over"
-//! operations whatever the thread count — same seed, same bytes.
+//! buffer); the trail texels are then bucketed by band of 64 rows with a stable counting sort
+//! (fibre order kept within a band) and the bands composited in parallel, so each texel sees the
+//! same sequence of "over" operations whatever the thread count — same seed, same bytes.
 //!
-//! Cost: O(fibres · fiber_length) for the walks plus O(bands · fibres · fiber_length) for the
-//! replay (bands = 16); allocates the trail buffer (8 bytes per trail texel) and the texture.
+//! Cost: O(fibres · fiber_length) for the walks, the bucketing and the compositing; allocates the
+//! trail buffer twice (8 bytes per trail texel) and the texture.
 
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
@@ -150,8 +150,8 @@ impl FiberWalk {
     pub fn heading_at(&self, t: u32) -> f32 {
         self.bends
             .iter()
-            .filter(|b| b.step <= t)
-            .last()
+            .rev()
+            .find(|b| b.step <= t)
             .map_or(self.heading, |b| b.heading)
     }
 
@@ -384,19 +384,39 @@ pub fn fiber_texture(
     );
     let alpha = params.fiber_opacity.clamp(0.0, 1.0);
     let band = BAND_ROWS * w;
+    let bands = texels.div_ceil(band);
+    // Bucket the trail texels by band, keeping fibre order within a bucket (a stable counting
+    // sort, serial: O(trail)), then composite the bands in parallel.
+    let mut start = vec![0usize; bands + 1];
+    for &(i, _) in &trail {
+        if i != u32::MAX {
+            start[i as usize / band + 1] += 1;
+        }
+    }
+    let mut sum = 0;
+    for s in start.iter_mut() {
+        sum += *s;
+        *s = sum;
+    }
+    let mut fill = start.clone();
+    let mut sorted = vec![(0u32, 0.0f32); start[bands]];
+    for &(i, b) in &trail {
+        if i != u32::MAX {
+            let k = i as usize / band;
+            sorted[fill[k]] = (i, b);
+            fill[k] += 1;
+        }
+    }
     tex.luminance
         .par_chunks_mut(band)
         .zip(tex.alpha.par_chunks_mut(band))
         .enumerate()
         .for_each(|(bi, (lum, alp))| {
-            let lo = (bi * band) as u32;
-            let hi = lo + lum.len() as u32;
-            for &(i, b) in &trail {
-                if i >= lo && i < hi {
-                    let o = (i - lo) as usize;
-                    lum[o] = alpha * b + (1.0 - alpha) * lum[o];
-                    alp[o] = alpha + (1.0 - alpha) * alp[o];
-                }
+            let lo = bi * band;
+            for &(i, b) in &sorted[start[bi]..start[bi + 1]] {
+                let o = i as usize - lo;
+                lum[o] = alpha * b + (1.0 - alpha) * lum[o];
+                alp[o] = alpha + (1.0 - alpha) * alp[o];
             }
         });
     tex

@@ -1,0 +1,197 @@
+//! The studio page (issue 7): its files are served with the right types, unknown files are a
+//! problem+json 404, the example inputs are deterministic and real inputs of their pipelines, and
+//! the page itself works in headless Chromium (`tests/browser/studio.mjs`).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use serde_json::{json, Value};
+
+use crate::common::Server;
+
+/// Pinned browser driver; installed on first use into `target/browser-node/`.
+const PLAYWRIGHT: &str = "playwright-core@1.65.1";
+
+#[tokio::test]
+async fn page_files_are_served_with_their_types() {
+    let s = Server::start(|_| {}).await;
+    let r = s.client.get(s.url("/")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["content-type"], "text/html; charset=utf-8");
+    assert_eq!(r.headers()["cache-control"], "no-cache");
+    let html = r.text().await.unwrap();
+    assert!(html.contains(r#"<script type="module" src="/web/app.js">"#));
+    // Nothing but the server: no http(s) URLs to load (links to docs are not loads, and there are none).
+    assert!(!html.contains("http://") && !html.contains("https://"));
+
+    for (file, media) in [
+        ("index.html", "text/html; charset=utf-8"),
+        ("app.js", "text/javascript; charset=utf-8"),
+        ("yaml.js", "text/javascript; charset=utf-8"),
+        ("cloud.js", "text/javascript; charset=utf-8"),
+        ("style.css", "text/css; charset=utf-8"),
+    ] {
+        let r = s
+            .client
+            .get(s.url(&format!("/web/{file}")))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200, "{file}");
+        assert_eq!(r.headers()["content-type"], media, "{file}");
+        let on_disk = std::fs::read(
+            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("web")
+                .join(file),
+        )
+        .unwrap();
+        assert_eq!(r.bytes().await.unwrap().as_ref(), &on_disk[..], "{file}");
+    }
+    for bad in [
+        "/web/nope.js",
+        "/web/..%2FCargo.toml",
+        "/v1/examples/nope.npy",
+    ] {
+        let r = s.client.get(s.url(bad)).send().await.unwrap();
+        assert_eq!(r.status(), 404, "{bad}");
+        assert_eq!(
+            r.headers()["content-type"],
+            "application/problem+json",
+            "{bad}"
+        );
+    }
+    s.stop().await;
+}
+
+#[tokio::test]
+async fn examples_are_deterministic() {
+    let s = Server::start(|_| {}).await;
+    for name in ["dem.asc", "mesh.obj", "volume.npy"] {
+        let get = || async {
+            let r = s
+                .client
+                .get(s.url(&format!("/v1/examples/{name}")))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 200, "{name}");
+            r.bytes().await.unwrap()
+        };
+        assert_eq!(get().await, get().await, "{name} differs between requests");
+    }
+    let npy = phenomena::api::web::example_volume();
+    let header_len = u16::from_le_bytes([npy[8], npy[9]]) as usize;
+    assert_eq!((10 + header_len) % 64, 0, "npy header is not 64-aligned");
+    assert_eq!(npy.len(), 10 + header_len + 40 * 32 * 40 * 4);
+    let dem = phenomena::api::web::example_dem();
+    assert_eq!(dem.lines().count(), 6 + 96);
+    assert_eq!(dem.lines().nth(6).unwrap().split(' ').count(), 96);
+    s.stop().await;
+}
+
+/// Uploads an example and runs its pipeline on it: each example is a valid input.
+#[tokio::test]
+async fn examples_run_through_their_pipelines() {
+    let s = Server::start(|_| {}).await;
+    for (name, pipeline, params) in [
+        (
+            "dem.asc",
+            "snow-terrain",
+            json!({"width": 64, "height": 48, "samples": 1}),
+        ),
+        (
+            "mesh.obj",
+            "snow-cover",
+            json!({"width": 64, "height": 48, "resolution": 48, "directions": 4, "steps": 4}),
+        ),
+        ("volume.npy", "cloud", json!({"width": 64, "height": 48})),
+    ] {
+        let bytes = s
+            .client
+            .get(s.url(&format!("/v1/examples/{name}")))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap();
+        let asset: Value = s
+            .client
+            .post(s.url(&format!("/v1/assets?filename={name}")))
+            .body(bytes)
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        let job: Value = s
+            .client
+            .post(s.url(&format!("/v1/{pipeline}")))
+            .header("prefer", "wait=60")
+            .json(&json!({"asset": asset["id"], "params": params}))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(job["status"], "succeeded", "{name}: {job}");
+        let outputs: Vec<&str> = job["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["name"].as_str().unwrap())
+            .collect();
+        assert!(outputs.contains(&"render.png"), "{name}: {outputs:?}");
+    }
+    s.stop().await;
+}
+
+fn playwright_dir() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/browser-node");
+    if !dir.join("node_modules/playwright-core").exists() {
+        std::fs::create_dir_all(&dir).unwrap();
+        let status = Command::new("npm")
+            .args(["install", "--no-audit", "--no-fund", "--silent", "--prefix"])
+            .arg(&dir)
+            .arg(PLAYWRIGHT)
+            .status()
+            .expect("npm is needed to install playwright-core");
+        assert!(status.success(), "npm install {PLAYWRIGHT} failed");
+    }
+    dir
+}
+
+/// The page in headless Chromium: upload a DEM and re-render on a parameter change, the
+/// snow-cover progress bar, the cloud editor's sun-colour stroke, shadow drag and undo, a
+/// download — no console errors, no request beyond the server. Screenshots go to
+/// `target/browser/`. Needs Debian's `chromium` (`apt-get install -y chromium`, done by
+/// `.ci/run`) and npm (playwright-core is installed into `target/browser-node/` on first use).
+/// Alone: `cargo test --test it web::studio_in_headless_chromium -- --nocapture`.
+#[test]
+fn studio_in_headless_chromium() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let pw = playwright_dir();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let s = rt.block_on(Server::start(|_| {}));
+    let url = s.url("");
+    let out = std::process::Command::new("node")
+        .arg(root.join("tests/browser/studio.mjs"))
+        .env("STUDIO_URL", &url)
+        .env("PLAYWRIGHT_DIR", &pw)
+        .env("SCREENSHOT_DIR", root.join("target/browser"))
+        .output()
+        .expect("node is needed for the browser test");
+    rt.block_on(s.stop());
+    let log = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("{log}");
+    assert!(out.status.success(), "the browser test failed:\n{log}");
+}
