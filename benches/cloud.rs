@@ -173,8 +173,11 @@ fn bench_edits(c: &mut Criterion) {
     g.finish();
 }
 
+/// Pinned voxels: (index, linear RGB).
+type Pins = Vec<(usize, [f32; 3])>;
+
 /// The ambient problem: guide = sun transmittance, pins = two painted blobs of cloud voxels.
-fn ambient_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
+fn ambient_problem(n: usize) -> (Volume, Vec<f32>, Pins) {
     let v = cumulus(n);
     let s = CloudState::default();
     let light = SunLight::compute(&v, s.sun_direction, s.kappa, &NoControl).unwrap();

@@ -35,3 +35,58 @@ impl Control for NoControl {
         false
     }
 }
+
+/// A stage of a longer job: maps the inner work's progress `[0, 1]` onto `[from, to]` of the
+/// job's, so a pipeline that calls a self-contained step (which reports its own 0–1) keeps its
+/// overall progress monotonic.
+pub struct Span<'a> {
+    pub inner: &'a dyn Control,
+    pub from: f32,
+    pub to: f32,
+}
+
+impl Control for Span<'_> {
+    fn progress(&self, stage: &str, fraction: f32) {
+        let f = fraction.clamp(0.0, 1.0);
+        self.inner
+            .progress(stage, self.from + (self.to - self.from) * f);
+    }
+    fn is_canceled(&self) -> bool {
+        self.inner.is_canceled()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    struct Record(Mutex<Vec<f32>>);
+    impl Control for Record {
+        fn progress(&self, _: &str, f: f32) {
+            self.0.lock().unwrap().push(f);
+        }
+        fn is_canceled(&self) -> bool {
+            false
+        }
+    }
+
+    #[test]
+    fn a_span_maps_its_progress_into_its_range() {
+        let r = Record(Mutex::new(Vec::new()));
+        let s = Span {
+            inner: &r,
+            from: 0.2,
+            to: 0.6,
+        };
+        for f in [0.0, 0.5, 1.0, 2.0] {
+            s.progress("x", f);
+        }
+        let got = r.0.lock().unwrap().clone();
+        let want = [0.2, 0.4, 0.6, 0.6];
+        assert!(
+            got.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6),
+            "{got:?}"
+        );
+    }
+}

@@ -17,6 +17,6 @@ pub mod render;
 pub mod snow_cover;
 pub mod snow_terrain;
 
-pub use control::{Canceled, Control, NoControl};
+pub use control::{Canceled, Control, NoControl, Span};
 pub use error::{InputError, ParamError};
 pub use output::Output;

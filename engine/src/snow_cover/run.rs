@@ -149,7 +149,13 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
             && (step * p.frames).div_ceil(model.steps)
                 != ((step - 1) * p.frames).div_ceil(model.steps)
     };
-    let (maps, report) = simulate(mesh, &model, ctl, |maps, step| {
+    // The model reports its own 0–1; it is the first 80 % of the job.
+    let model_ctl = crate::Span {
+        inner: ctl,
+        from: 0.0,
+        to: 0.8,
+    };
+    let (maps, report) = simulate(mesh, &model, &model_ctl, |maps, step| {
         if wanted(step) {
             let t0 = Instant::now();
             let snow = snow_meshes(maps, DEFAULT_MIN_DEPTH_M);
