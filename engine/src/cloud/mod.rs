@@ -15,6 +15,7 @@ pub mod light;
 pub mod march;
 pub mod multigrid;
 pub mod params;
+pub mod procedural;
 pub mod run;
 pub mod state;
 

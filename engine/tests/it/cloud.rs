@@ -5,6 +5,7 @@
 
 use phenomena_engine::cloud::light::{transmittance_marched, SunLight};
 use phenomena_engine::cloud::march::{render_layers, Prepared};
+use phenomena_engine::cloud::procedural::cumulus;
 use phenomena_engine::cloud::{run, CloudState, Params, View};
 use phenomena_engine::geom::Volume;
 use phenomena_engine::pipeline::Limits;
@@ -29,68 +30,6 @@ pub fn blob(n: usize, peak: f32) -> Volume {
         }
     }
     Volume::new([n; 3], d, ([-1.0; 3], [1.0; 3])).unwrap()
-}
-
-/// Procedural cumulus: a few overlapping spheres with fBm-perturbed edges, flat base.
-pub fn cumulus(n: usize) -> Volume {
-    let hash = |x: i32, y: i32, z: i32| -> f32 {
-        let mut h = (x as u32).wrapping_mul(0x8da6_b343)
-            ^ (y as u32).wrapping_mul(0xd816_3841)
-            ^ (z as u32).wrapping_mul(0xcb1a_b31f);
-        h ^= h >> 13;
-        h = h.wrapping_mul(0x5bd1_e995);
-        h ^= h >> 15;
-        (h & 0xffff) as f32 / 65535.0
-    };
-    let noise = |p: [f32; 3]| -> f32 {
-        let i = p.map(|v| v.floor() as i32);
-        let f = [0, 1, 2].map(|k| {
-            let t = p[k] - p[k].floor();
-            t * t * (3.0 - 2.0 * t)
-        });
-        let mut s = 0.0;
-        for c in 0..8 {
-            let (a, b, e) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-            let w = (if a == 1 { f[0] } else { 1.0 - f[0] })
-                * (if b == 1 { f[1] } else { 1.0 - f[1] })
-                * (if e == 1 { f[2] } else { 1.0 - f[2] });
-            s += w * hash(i[0] + a, i[1] + b, i[2] + e);
-        }
-        s
-    };
-    let spheres = [
-        ([0.5, 0.35, 0.5], 0.22),
-        ([0.33, 0.3, 0.45], 0.16),
-        ([0.67, 0.3, 0.55], 0.17),
-        ([0.48, 0.52, 0.5], 0.16),
-    ];
-    let mut d = Vec::with_capacity(n * n * n);
-    for z in 0..n {
-        for y in 0..n {
-            for x in 0..n {
-                let p = [x, y, z].map(|v| (v as f32 + 0.5) / n as f32);
-                let mut fbm = 0.0;
-                let mut amp = 0.5;
-                let mut fr = 6.0;
-                for _ in 0..4 {
-                    fbm += amp * noise(p.map(|v| v * fr));
-                    amp *= 0.5;
-                    fr *= 2.0;
-                }
-                let mut field = f32::NEG_INFINITY;
-                for (c, r) in spheres {
-                    let dd =
-                        ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2))
-                            .sqrt();
-                    field = field.max(1.0 - dd / r);
-                }
-                let base = ((p[1] - 0.18) * 20.0).clamp(0.0, 1.0);
-                let v = ((field + 0.35 * (fbm - 0.45)) * 3.0).clamp(0.0, 1.0) * base;
-                d.push(v);
-            }
-        }
-    }
-    Volume::new([n; 3], d, Volume::default_bounds([n; 3])).unwrap()
 }
 
 /// A test-local NRRD reader (raw little-endian float32, x fastest): enough for the two files in

@@ -16,7 +16,8 @@ use phenomena_engine::render::image::{srgb8_to_linear, srgb_to_linear};
 use phenomena_engine::NoControl;
 use serde_json::{json, Value};
 
-use super::cloud::{blob, cumulus};
+use super::cloud::blob;
+use phenomena_engine::cloud::procedural::{cumulus, cumulus_pins};
 
 fn limits() -> Limits {
     Limits::default()
@@ -447,25 +448,7 @@ fn cumulus_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
     let v = cumulus(n);
     let light =
         SunLight::compute(&v, CloudState::default().sun_direction, 40.0, &NoControl).unwrap();
-    let mut pins = vec![];
-    for z in 0..n {
-        for y in 0..n {
-            for x in 0..n {
-                let i = v.index(x, y, z);
-                if v.density[i] <= 0.0 {
-                    continue;
-                }
-                let p = [x, y, z].map(|c| c as f64 / n as f64);
-                let d1 = (p[0] - 0.35).powi(2) + (p[1] - 0.3).powi(2) + (p[2] - 0.45).powi(2);
-                let d2 = (p[0] - 0.65).powi(2) + (p[1] - 0.4).powi(2) + (p[2] - 0.55).powi(2);
-                if d1 < 0.004 {
-                    pins.push((i, [0.9, 0.5, 0.3]));
-                } else if d2 < 0.003 {
-                    pins.push((i, [0.2, 0.3, 0.8]));
-                }
-            }
-        }
-    }
+    let pins = cumulus_pins(&v);
     assert!(!pins.is_empty());
     (v, light.transmittance, pins)
 }
