@@ -19,6 +19,9 @@ pub struct UploadQuery {
     filename: Option<String>,
 }
 
+/// Longest `?filename=` accepted (a common file-system limit; names are metadata only).
+const MAX_FILENAME_CHARS: usize = 255;
+
 /// `POST /v1/assets`: the raw body (any content type but multipart), or a multipart body with one
 /// `file` part. 201 with the record when new, 200 when the same bytes were uploaded before.
 pub async fn upload(
@@ -27,6 +30,15 @@ pub async fn upload(
     req: Request,
 ) -> Result<Response, ApiError> {
     let Query(q) = q.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    if q.filename
+        .as_ref()
+        .is_some_and(|f| f.chars().count() > MAX_FILENAME_CHARS)
+    {
+        return Err(ApiError::bad_field(
+            "filename",
+            format!("longer than {MAX_FILENAME_CHARS} characters"),
+        ));
+    }
     let is_multipart = req
         .headers()
         .get(header::CONTENT_TYPE)

@@ -16,8 +16,8 @@ use serde_json::{Map, Value};
 
 use super::jobs::prefer_wait;
 use super::submit::{
-    blocking_err, describe_input, input_bytes, queue_job, read_body, request_key, respond,
-    store_input, touch_asset,
+    blocking_err, describe_input, input_bytes, queue_job, read_body, reject_nulls, request_key,
+    respond, store_input, touch_asset,
 };
 use super::AppState;
 use crate::clouds::{is_scene_id, SceneError, SceneRecord, VersionRecord, VersionStatus};
@@ -118,6 +118,7 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
         return Err(ApiError::Unavailable("the service is shutting down".into()));
     }
     let (raw, input) = read_body(&st, req, "volume").await?;
+    reject_nulls(&raw, "")?;
     let raw = object(&raw, "params")?;
     if let Some(k) = VIEW_KEYS.iter().find(|k| raw.contains_key(**k)) {
         return Err(ParamError::new(
@@ -221,8 +222,14 @@ pub async fn delete(
 fn take_version(body: &mut Map<String, Value>, field: &str) -> Result<Option<u32>, ApiError> {
     match body.remove(field) {
         None | Some(Value::Null) => Ok(None),
+        // JSON Schema counts 2.0 as an integer, so an integral float is a version number too.
         Some(v) => v
             .as_u64()
+            .or_else(|| {
+                v.as_f64()
+                    .filter(|f| f.fract() == 0.0 && (1.0..=f64::from(u32::MAX)).contains(f))
+                    .map(|f| f as u64)
+            })
             .and_then(|n| u32::try_from(n).ok())
             .filter(|n| *n >= 1)
             .map(Some)
@@ -333,6 +340,7 @@ pub async fn render(
 ) -> Result<Response, ApiError> {
     let wait = prefer_wait(&headers, st.cfg.max_wait_secs);
     let mut body = read_json(&st, req).await?;
+    reject_nulls(&Value::Object(body.clone()), "")?;
     let n = take_version(&mut body, "version")?;
     if let Some(k) = body.keys().find(|k| !VIEW_KEYS.contains(&k.as_str())) {
         return Err(ParamError::new(
@@ -397,6 +405,7 @@ pub async fn edit(
     }
     let wait = prefer_wait(&headers, st.cfg.max_wait_secs);
     let mut body = read_json(&st, req).await?;
+    reject_nulls(&Value::Object(body.clone()), "")?;
     let n = take_version(&mut body, "base_version")?;
     let (scene, base) = ready_version(&st, &id, n, "base_version").await?;
     let mut params = Map::new();

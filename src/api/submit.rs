@@ -16,6 +16,7 @@ use super::jobs::{job_response, prefer_wait};
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::{InputRef, SubmitError, Submitted};
+use phenomena_engine::ParamError;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -70,6 +71,7 @@ pub async fn submit(
     let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
     let (raw_params, input) = read_body(&st, req, part).await?;
 
+    reject_nulls(&raw_params, "")?;
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
 
@@ -283,6 +285,10 @@ async fn read_multipart(
         let name = field.name().unwrap_or("").to_string();
         if name == "params" {
             let text = field.bytes().await.map_err(multipart_err)?;
+            // An empty params field (a form left blank) means no params, as when it is absent.
+            if text.trim_ascii().is_empty() {
+                continue;
+            }
             let v: serde_json::Value = serde_json::from_slice(&text).map_err(|e| {
                 ApiError::bad_field("params", format!("the params part is not valid JSON: {e}"))
             })?;
@@ -344,4 +350,39 @@ pub(crate) fn sanitize_filename(name: &str) -> String {
         .filter(|c| !c.is_control() && *c != '"')
         .take(255)
         .collect()
+}
+
+/// Fields where `null` is a value of its own ("none"), as `openapi.yaml` declares them: the cloud
+/// state's transparent background and the decoder options "from the file".
+const NULLABLE: &[&str] = &["background", "bounds", "dims"];
+
+/// Refuses `null` anywhere in request parameters except the [`NULLABLE`] fields: the schema
+/// does not allow it, and "null means the default" would make two spellings of one request.
+pub(crate) fn reject_nulls(v: &serde_json::Value, path: &str) -> Result<(), ApiError> {
+    use serde_json::Value;
+    let field = |k: &str| {
+        if path.is_empty() {
+            k.to_string()
+        } else {
+            format!("{path}.{k}")
+        }
+    };
+    match v {
+        Value::Object(m) => m.iter().try_for_each(|(k, x)| {
+            if x.is_null() && !NULLABLE.contains(&k.as_str()) {
+                Err(ParamError::new(
+                    field(k),
+                    "null is not a value here; leave the field out for its default",
+                )
+                .into())
+            } else {
+                reject_nulls(x, &field(k))
+            }
+        }),
+        Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .try_for_each(|(i, x)| reject_nulls(x, &field(&i.to_string()))),
+        _ => Ok(()),
+    }
 }

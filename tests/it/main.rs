@@ -5,6 +5,7 @@
 mod api;
 mod clouds;
 mod common;
+mod conformance;
 mod openapi;
 mod restart;
 mod snow_cover;
