@@ -69,6 +69,14 @@ pub struct ServeArgs {
     /// Log format. Default text.
     #[arg(long, env = "PHENOMENA_LOG_FORMAT", value_enum)]
     pub log_format: Option<LogFormat>,
+    /// Bearer tokens accepted on every `/v1` route (comma-separated in the flag and the
+    /// environment). Default none: no authentication. Never logged.
+    #[arg(long, env = "PHENOMENA_AUTH_TOKENS", value_delimiter = ',')]
+    pub auth_tokens: Option<Vec<String>>,
+    /// Origins allowed to call the API from a browser (CORS), comma-separated; `*` for any.
+    /// Default none: CORS off (the page at `/` is same-origin and needs none).
+    #[arg(long, env = "PHENOMENA_CORS_ORIGINS", value_delimiter = ',')]
+    pub cors_origins: Option<Vec<String>>,
 }
 
 /// The resolved configuration.
@@ -89,6 +97,17 @@ pub struct Config {
     pub max_wait_secs: u64,
     pub shutdown_grace_secs: u64,
     pub log_format: LogFormat,
+    /// Accepted bearer tokens; empty = authentication off. Logged as a count only.
+    #[serde(serialize_with = "redact_tokens")]
+    pub auth_tokens: Vec<String>,
+    /// CORS origins; empty = CORS off.
+    pub cors_origins: Vec<String>,
+}
+
+/// Serializes the token list as its length: the config is logged at start-up and secrets must
+/// never reach the log.
+fn redact_tokens<S: serde::Serializer>(t: &[String], s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&format!("<{} token(s) redacted>", t.len()))
 }
 
 /// Configuration errors (reported by `main`).
@@ -106,6 +125,8 @@ pub enum ConfigError {
     },
     #[error("{0} must be at least 1")]
     Zero(&'static str),
+    #[error("{0}")]
+    Invalid(String),
 }
 
 impl Default for Config {
@@ -126,6 +147,8 @@ impl Default for Config {
             max_wait_secs: 60,
             shutdown_grace_secs: 30,
             log_format: LogFormat::Text,
+            auth_tokens: Vec::new(),
+            cors_origins: Vec::new(),
         }
     }
 }
@@ -172,7 +195,34 @@ impl Config {
             max_wait_secs: pick!(max_wait_secs),
             shutdown_grace_secs: pick!(shutdown_grace_secs),
             log_format: pick!(log_format),
+            auth_tokens: args
+                .auth_tokens
+                .clone()
+                .or(file.auth_tokens.clone())
+                .unwrap_or_default(),
+            cors_origins: args
+                .cors_origins
+                .clone()
+                .or(file.cors_origins.clone())
+                .unwrap_or_default(),
         };
+        // A short token is guessable; 16 characters is the least a random token should have.
+        if cfg
+            .auth_tokens
+            .iter()
+            .any(|t| t.len() < 16 || t.contains(char::is_whitespace))
+        {
+            return Err(ConfigError::Invalid(
+                "auth_tokens: each token needs at least 16 characters and no whitespace".into(),
+            ));
+        }
+        for o in &cfg.cors_origins {
+            if o != "*" && axum::http::HeaderValue::from_str(o).is_err() {
+                return Err(ConfigError::Invalid(format!(
+                    "cors_origins: {o:?} is not an origin"
+                )));
+            }
+        }
         if cfg.concurrency == 0 {
             return Err(ConfigError::Zero("concurrency"));
         }

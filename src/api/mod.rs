@@ -9,14 +9,17 @@ mod submit;
 mod system;
 pub mod web;
 
+pub use submit::{parse_submission, Input};
+
 use std::sync::Arc;
 use std::time::Instant;
 
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::middleware::{self, Next};
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
+use sha2::Digest;
 use tokio_util::sync::CancellationToken;
 use tower_http::trace::TraceLayer;
 
@@ -87,13 +90,79 @@ pub fn app(state: AppState) -> Router {
             post(move |st: State<AppState>, req: Request| submit::submit(name, st, req)),
         );
     }
+    let cors = cors_layer(&state.cfg.cors_origins);
     router
         .fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
+        .layer(middleware::from_fn_with_state(state.clone(), authenticate))
         .layer(middleware::from_fn_with_state(state.clone(), track))
         .layer(TraceLayer::new_for_http())
+        .layer(tower::util::option_layer(cors))
         .with_state(state)
+}
+
+/// With `auth_tokens` configured, every `/v1` route needs `Authorization: Bearer <token>`
+/// (401 with `WWW-Authenticate` otherwise); `/`, `/web/*`, health, readiness, metrics and the
+/// OpenAPI document stay open (probes and the page's shell need no secret). Tokens are compared
+/// by their SHA-256 digests, so the time taken does not depend on how much of a guess matched.
+async fn authenticate(State(st): State<AppState>, req: Request, next: Next) -> Response {
+    if st.cfg.auth_tokens.is_empty() || !req.uri().path().starts_with("/v1/") {
+        return next.run(req).await;
+    }
+    let given = req
+        .headers()
+        .get(axum::http::header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| {
+            v.strip_prefix("Bearer ")
+                .or_else(|| v.strip_prefix("bearer "))
+        })
+        .map(|t| sha2::Sha256::digest(t.trim().as_bytes()));
+    let ok = given.is_some_and(|g| {
+        st.cfg.auth_tokens.iter().fold(false, |acc, t| {
+            acc | (sha2::Sha256::digest(t.as_bytes()) == g)
+        })
+    });
+    if ok {
+        next.run(req).await
+    } else {
+        ApiError::Unauthorized(
+            "send `Authorization: Bearer <token>` with a configured token".into(),
+        )
+        .into_response()
+    }
+}
+
+/// CORS for browsers on other origins, off unless `cors_origins` is set (`*` = any origin).
+fn cors_layer(origins: &[String]) -> Option<tower_http::cors::CorsLayer> {
+    use axum::http::{header, HeaderName, HeaderValue, Method};
+    use tower_http::cors::{AllowOrigin, CorsLayer};
+    if origins.is_empty() {
+        return None;
+    }
+    let allow = if origins.iter().any(|o| o == "*") {
+        AllowOrigin::any()
+    } else {
+        AllowOrigin::list(origins.iter().filter_map(|o| HeaderValue::from_str(o).ok()))
+    };
+    Some(
+        CorsLayer::new()
+            .allow_origin(allow)
+            .allow_methods([Method::GET, Method::POST, Method::DELETE])
+            .allow_headers([
+                header::CONTENT_TYPE,
+                header::AUTHORIZATION,
+                header::IF_NONE_MATCH,
+                HeaderName::from_static("prefer"),
+            ])
+            .expose_headers([
+                header::LOCATION,
+                header::RETRY_AFTER,
+                header::ETAG,
+                HeaderName::from_static("preference-applied"),
+            ]),
+    )
 }
 
 async fn fallback(State(st): State<AppState>, req: Request) -> ApiError {

@@ -31,7 +31,7 @@ fn empty_object() -> serde_json::Value {
 }
 
 /// The input as received: new bytes to store, or the id of an uploaded asset.
-pub(super) enum Input {
+pub enum Input {
     Upload {
         bytes: bytes::Bytes,
         filename: Option<String>,
@@ -145,6 +145,17 @@ pub(super) async fn read_body(
     req: Request,
     part: &'static str,
 ) -> Result<(serde_json::Value, Input), ApiError> {
+    parse_submission(req, part, st.cfg.max_body_bytes).await
+}
+
+/// Parses a job submission: a multipart body (`params` JSON part, the `part` file part) or a
+/// JSON body naming an asset, read up to `max_body` bytes. Public for the `multipart` fuzz
+/// target (`fuzz/`); the server calls it through `read_body`.
+pub async fn parse_submission(
+    req: Request,
+    part: &'static str,
+    max_body: usize,
+) -> Result<(serde_json::Value, Input), ApiError> {
     let ctype = req
         .headers()
         .get(header::CONTENT_TYPE)
@@ -152,9 +163,9 @@ pub(super) async fn read_body(
         .unwrap_or("")
         .to_ascii_lowercase();
     if ctype.starts_with("multipart/form-data") {
-        read_multipart(st, req, part).await
+        read_multipart(req, part).await
     } else if ctype.starts_with("application/json") {
-        read_json(st, req).await
+        read_json(req, max_body).await
     } else {
         Err(ApiError::UnsupportedMediaType(format!(
             "send multipart/form-data (a `params` part and a `{part}` file part) or application/json \
@@ -272,11 +283,10 @@ fn multipart_err(e: axum::extract::multipart::MultipartError) -> ApiError {
 }
 
 async fn read_multipart(
-    st: &AppState,
     req: Request,
     part: &'static str,
 ) -> Result<(serde_json::Value, Input), ApiError> {
-    let mut mp = Multipart::from_request(req, st).await.map_err(|e| {
+    let mut mp = Multipart::from_request(req, &()).await.map_err(|e| {
         ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
     })?;
     let mut params = None;
@@ -321,8 +331,8 @@ async fn read_multipart(
     Ok((params.unwrap_or_else(empty_object), input))
 }
 
-async fn read_json(st: &AppState, req: Request) -> Result<(serde_json::Value, Input), ApiError> {
-    let body = axum::body::to_bytes(req.into_body(), st.cfg.max_body_bytes)
+async fn read_json(req: Request, max_body: usize) -> Result<(serde_json::Value, Input), ApiError> {
+    let body = axum::body::to_bytes(req.into_body(), max_body)
         .await
         .map_err(|_| ApiError::PayloadTooLarge("request body too large".into()))?;
     let j: JsonSubmit = serde_json::from_slice(&body)
