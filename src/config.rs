@@ -15,6 +15,28 @@ pub enum LogFormat {
     Json,
 }
 
+/// What a process does in a scaled deployment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Serves the API and runs no jobs (submissions go to the shared queue).
+    Api,
+    /// Runs jobs from the shared queue; serves only `/healthz`, `/readyz` and `/metrics`.
+    Worker,
+    /// Both (the default; the only role without Redis).
+    Both,
+}
+
+impl Role {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Api => "api",
+            Role::Worker => "worker",
+            Role::Both => "both",
+        }
+    }
+}
+
 /// Settings given on the command line, the environment or the config file. Every field is optional
 /// here; [`Config::resolve`] fills in the defaults.
 #[derive(Debug, Clone, Default, Deserialize, clap::Args)]
@@ -77,6 +99,24 @@ pub struct ServeArgs {
     /// Default none: CORS off (the page at `/` is same-origin and needs none).
     #[arg(long, env = "PHENOMENA_CORS_ORIGINS", value_delimiter = ',')]
     pub cors_origins: Option<Vec<String>>,
+    /// Redis URL (`redis://host:6379/0`): share the queue, job state and progress with other
+    /// replicas. Default: none (the embedded job system).
+    #[arg(long, env = "PHENOMENA_REDIS_URL")]
+    pub redis_url: Option<String>,
+    /// Prefix of every Redis key and channel, so deployments can share one Redis. Default
+    /// `phenomena`.
+    #[arg(long, env = "PHENOMENA_REDIS_PREFIX")]
+    pub redis_prefix: Option<String>,
+    /// Seconds a worker may go without a heartbeat before another replica takes its job over.
+    /// Default 30.
+    #[arg(long, env = "PHENOMENA_REDIS_LEASE_SECS")]
+    pub redis_lease_secs: Option<u64>,
+    /// `api`, `worker` or `both` (needs `--redis-url` unless `both`). Default both.
+    #[arg(long, env = "PHENOMENA_ROLE", value_enum)]
+    pub role: Option<Role>,
+    /// This replica's name in logs, metrics and job records. Default: host name and process id.
+    #[arg(long, env = "PHENOMENA_REPLICA_ID")]
+    pub replica_id: Option<String>,
 }
 
 /// The resolved configuration.
@@ -102,6 +142,43 @@ pub struct Config {
     pub auth_tokens: Vec<String>,
     /// CORS origins; empty = CORS off.
     pub cors_origins: Vec<String>,
+    /// Logged without its password (see [`redact_url`]).
+    #[serde(serialize_with = "redacted")]
+    pub redis_url: Option<String>,
+    pub redis_prefix: String,
+    pub redis_lease_secs: u64,
+    pub role: Role,
+    pub replica_id: String,
+}
+
+/// Serialises a URL without its password (the config is logged at start-up).
+fn redacted<S: serde::Serializer>(url: &Option<String>, s: S) -> Result<S::Ok, S::Error> {
+    match url {
+        Some(u) => s.serialize_some(&redact_url(u)),
+        None => s.serialize_none(),
+    }
+}
+
+/// `redis://user:secret@host/0` → `redis://user:***@host/0`.
+pub fn redact_url(u: &str) -> String {
+    match (u.find("://"), u.rfind('@')) {
+        (Some(scheme), Some(at)) if at > scheme => {
+            let userinfo = &u[scheme + 3..at];
+            let user = userinfo.split(':').next().unwrap_or("");
+            format!("{}{user}:***{}", &u[..scheme + 3], &u[at..])
+        }
+        _ => u.to_string(),
+    }
+}
+
+/// The default replica name: host name and process id.
+pub fn default_replica_id() -> String {
+    let host = std::fs::read_to_string("/etc/hostname")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "replica".into());
+    format!("{host}-{}", std::process::id())
 }
 
 /// Serializes the token list as its length: the config is logged at start-up and secrets must
@@ -127,6 +204,8 @@ pub enum ConfigError {
     Zero(&'static str),
     #[error("{0}")]
     Invalid(String),
+    #[error("--role {0} needs --redis-url (only `both` runs without Redis)")]
+    RoleNeedsRedis(&'static str),
 }
 
 impl Default for Config {
@@ -149,6 +228,11 @@ impl Default for Config {
             log_format: LogFormat::Text,
             auth_tokens: Vec::new(),
             cors_origins: Vec::new(),
+            redis_url: None,
+            redis_prefix: "phenomena".into(),
+            redis_lease_secs: 30,
+            role: Role::Both,
+            replica_id: String::new(),
         }
     }
 }
@@ -205,7 +289,26 @@ impl Config {
                 .clone()
                 .or(file.cors_origins.clone())
                 .unwrap_or_default(),
+            redis_url: args.redis_url.clone().or(file.redis_url.clone()),
+            redis_prefix: args
+                .redis_prefix
+                .clone()
+                .or(file.redis_prefix.clone())
+                .unwrap_or(d.redis_prefix.clone()),
+            redis_lease_secs: pick!(redis_lease_secs),
+            role: pick!(role),
+            replica_id: args
+                .replica_id
+                .clone()
+                .or(file.replica_id.clone())
+                .unwrap_or_else(default_replica_id),
         };
+        if cfg.role != Role::Both && cfg.redis_url.is_none() {
+            return Err(ConfigError::RoleNeedsRedis(cfg.role.as_str()));
+        }
+        if cfg.redis_lease_secs == 0 {
+            return Err(ConfigError::Zero("redis_lease_secs"));
+        }
         // A short token is guessable; 16 characters is the least a random token should have.
         if cfg
             .auth_tokens
@@ -234,7 +337,12 @@ impl Config {
 
     pub fn jobs(&self) -> crate::jobs::JobsConfig {
         crate::jobs::JobsConfig {
-            concurrency: self.concurrency,
+            // An API-only replica runs no jobs.
+            concurrency: if self.role == Role::Api {
+                0
+            } else {
+                self.concurrency
+            },
             queue_capacity: self.queue_capacity,
             job_timeout: Duration::from_secs(self.job_timeout_secs),
             retention: Duration::from_secs(self.retention_secs),
@@ -270,6 +378,36 @@ mod tests {
         assert_eq!(c.concurrency, 2);
         assert_eq!(c.queue_capacity, 5);
         assert_eq!(c.job_timeout_secs, 600);
+        assert_eq!(c.role, Role::Both);
+        assert!(!c.replica_id.is_empty());
+    }
+
+    #[test]
+    fn roles_other_than_both_need_redis() {
+        let args = ServeArgs {
+            role: Some(Role::Worker),
+            ..Default::default()
+        };
+        assert!(matches!(
+            Config::resolve(args),
+            Err(ConfigError::RoleNeedsRedis("worker"))
+        ));
+        let args = ServeArgs {
+            role: Some(Role::Api),
+            redis_url: Some("redis://127.0.0.1/".into()),
+            ..Default::default()
+        };
+        let c = Config::resolve(args).unwrap();
+        assert_eq!(c.jobs().concurrency, 0);
+    }
+
+    #[test]
+    fn redis_passwords_are_not_logged() {
+        assert_eq!(
+            redact_url("redis://u:secret@h:6379/2"),
+            "redis://u:***@h:6379/2"
+        );
+        assert_eq!(redact_url("redis://h:6379/2"), "redis://h:6379/2");
     }
 
     #[test]

@@ -152,6 +152,33 @@ impl From<crate::store::StoreError> for ApiError {
     }
 }
 
+impl From<crate::jobs::JobsError> for ApiError {
+    fn from(e: crate::jobs::JobsError) -> Self {
+        match e {
+            crate::jobs::JobsError::Store(e) => e.into(),
+            crate::jobs::JobsError::Backend(msg) => {
+                tracing::error!(error = %msg, "job backend failure");
+                ApiError::Unavailable("the job system is unavailable; try again later".into())
+            }
+        }
+    }
+}
+
+impl From<crate::clouds::SceneError> for ApiError {
+    fn from(e: crate::clouds::SceneError) -> Self {
+        match e {
+            crate::clouds::SceneError::NotFound(d) => {
+                ApiError::NotFound(format!("no cloud scene {d}"))
+            }
+            crate::clouds::SceneError::Store(s) => s.into(),
+            crate::clouds::SceneError::Backend(msg) => {
+                tracing::error!(error = %msg, "scene store failure");
+                ApiError::Unavailable("the scene store is unavailable; try again later".into())
+            }
+        }
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let (status, kind, title) = self.parts();

@@ -20,9 +20,13 @@ use std::time::Duration;
 pub use api::{app, AppState};
 use tokio_util::sync::CancellationToken;
 
+use crate::clouds::files::FileScenes;
+use crate::clouds::redis::RedisScenes;
 use crate::clouds::Scenes;
 use crate::config::Config;
-use crate::jobs::Jobs;
+use crate::jobs::embedded::Embedded;
+use crate::jobs::redis::{RedisJobs, RedisSettings};
+use crate::jobs::{JobBackend, Jobs};
 use crate::metrics::Metrics;
 use crate::pipelines::{EnginePipelines, PipelineSet};
 use crate::store::Store;
@@ -34,32 +38,90 @@ pub enum StartError {
     Store(#[from] store::StoreError),
     #[error("cannot start the job system: {0}")]
     Jobs(#[from] jobs::StartError),
+    #[error("job backend: {0}")]
+    Backend(String),
     #[error("metrics: {0}")]
     Metrics(#[from] prometheus::Error),
+    #[error("cannot load the cloud scenes: {0}")]
+    Scenes(#[from] clouds::SceneError),
 }
 
 /// Opens the store and starts the job system with the engine's pipelines.
-pub fn state(cfg: Config) -> Result<AppState, StartError> {
+pub async fn state(cfg: Config) -> Result<AppState, StartError> {
     let limits = cfg.limits();
-    state_with(cfg, Arc::new(EnginePipelines { limits }))
+    state_with(cfg, Arc::new(EnginePipelines { limits })).await
 }
 
 /// Like [`state`] with another pipeline set (tests use a pipeline that sleeps in stages).
-pub fn state_with(cfg: Config, pipelines: Arc<dyn PipelineSet>) -> Result<AppState, StartError> {
+pub async fn state_with(
+    cfg: Config,
+    pipelines: Arc<dyn PipelineSet>,
+) -> Result<AppState, StartError> {
+    let mut cfg = cfg;
+    if cfg.replica_id.is_empty() {
+        cfg.replica_id = format!(
+            "{}-{}",
+            config::default_replica_id(),
+            hex::encode(rand::random::<[u8; 2]>())
+        );
+    }
     let store = Store::open(&cfg.data_dir)?;
     let metrics = Metrics::new()?;
-    let clouds = Scenes::open(store.clone())?;
-    let jobs = Jobs::start(
-        store,
-        pipelines,
-        Arc::new(clouds.clone()),
-        cfg.jobs(),
-        metrics.clone(),
-    )?;
+    let jcfg = cfg.jobs();
+    let (backend, clouds): (Arc<dyn JobBackend>, Scenes) = match &cfg.redis_url {
+        None => {
+            let clouds = Scenes::new(Arc::new(FileScenes::open(store.clone())?), store.clone());
+            let backend = Embedded::start(
+                store.clone(),
+                pipelines.clone(),
+                Arc::new(clouds.clone()),
+                jcfg.clone(),
+                metrics.clone(),
+            )?;
+            (Arc::new(backend), clouds)
+        }
+        Some(url) => {
+            let client = ::redis::Client::open(url.as_str())
+                .map_err(|e| StartError::Backend(format!("invalid Redis URL: {e}")))?;
+            let con = jobs::redis::connect(&client)
+                .await
+                .map_err(|e| StartError::Backend(format!("cannot reach Redis: {e}")))?;
+            let clouds = Scenes::new(
+                Arc::new(RedisScenes::new(con, &cfg.redis_prefix)),
+                store.clone(),
+            );
+            let settings = RedisSettings {
+                url: url.clone(),
+                prefix: cfg.redis_prefix.clone(),
+                lease: Duration::from_secs(cfg.redis_lease_secs),
+                replica: cfg.replica_id.clone(),
+            };
+            let backend = RedisJobs::start(
+                settings,
+                store.clone(),
+                pipelines.clone(),
+                Arc::new(clouds.clone()),
+                jcfg.clone(),
+                metrics.clone(),
+            )
+            .await?;
+            (Arc::new(backend), clouds)
+        }
+    };
+    let hooks = Arc::new(clouds.clone());
+    metrics
+        .replica_info
+        .with_label_values(&[cfg.replica_id.as_str(), cfg.role.as_str(), backend.kind()])
+        .set(1);
+    let jobs = Jobs::new(backend, store, pipelines, hooks, &jcfg, metrics.clone());
     // Versions whose job ended while the process was down (or just before a crash).
-    for id in clouds.pending_jobs(None) {
-        if let Some(rec) = jobs.get(&id) {
-            clouds.resolve(&rec)?;
+    for id in clouds.pending_jobs(None).await? {
+        if let Some(rec) = jobs
+            .get(&id)
+            .await
+            .map_err(|e| StartError::Backend(e.to_string()))?
+        {
+            clouds.resolve(&rec).await?;
         }
     }
     // Fill the store-size gauge once at start; the sweeper refreshes it.

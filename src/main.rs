@@ -48,7 +48,7 @@ fn main() -> anyhow::Result<()> {
                 .context("cannot start the async runtime")?;
             rt.block_on(async move {
                 let bind = cfg.bind;
-                let state = phenomena::state(cfg)?;
+                let state = phenomena::state(cfg).await?;
                 let listener = tokio::net::TcpListener::bind(bind)
                     .await
                     .with_context(|| format!("cannot listen on {bind}"))?;

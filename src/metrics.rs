@@ -1,7 +1,8 @@
 //! Prometheus metrics: one registry per server, rendered as text at `GET /metrics`.
 
 use prometheus::{
-    Encoder, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
+    Encoder, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry,
+    TextEncoder,
 };
 
 /// Every metric the service exports.
@@ -15,6 +16,12 @@ pub struct Metrics {
     pub queue_depth: IntGauge,
     pub jobs_running: IntGauge,
     pub store_bytes: IntGauge,
+    /// Worker slots of this replica (0 for an API-only replica).
+    pub workers: IntGauge,
+    /// Jobs this replica started, `how` = `new` or `reclaimed` (taken over from a dead worker).
+    pub jobs_started: IntCounterVec,
+    /// Always 1, labelled with this replica's name, role and job backend.
+    pub replica_info: IntGaugeVec,
 }
 
 impl Metrics {
@@ -54,8 +61,23 @@ impl Metrics {
                 Opts::new("jobs_finished_total", "Jobs by pipeline and final status"),
                 &["pipeline", "status"],
             )?,
-            queue_depth: IntGauge::new("queue_depth", "Jobs waiting in the queue")?,
-            jobs_running: IntGauge::new("jobs_running", "Jobs running now")?,
+            queue_depth: IntGauge::new(
+                "queue_depth",
+                "Jobs waiting in the queue (the shared queue with Redis)",
+            )?,
+            jobs_running: IntGauge::new("jobs_running", "Jobs running in this replica")?,
+            workers: IntGauge::new("workers", "Worker slots of this replica")?,
+            jobs_started: IntCounterVec::new(
+                Opts::new(
+                    "jobs_started_total",
+                    "Jobs this replica started: new, or reclaimed from a worker that died",
+                ),
+                &["how"],
+            )?,
+            replica_info: IntGaugeVec::new(
+                Opts::new("replica_info", "This replica: name, role and job backend"),
+                &["replica", "role", "backend"],
+            )?,
             store_bytes: IntGauge::new("store_bytes", "Bytes held in the blob store")?,
             registry,
         };
@@ -66,6 +88,9 @@ impl Metrics {
         m.registry.register(Box::new(m.queue_depth.clone()))?;
         m.registry.register(Box::new(m.jobs_running.clone()))?;
         m.registry.register(Box::new(m.store_bytes.clone()))?;
+        m.registry.register(Box::new(m.workers.clone()))?;
+        m.registry.register(Box::new(m.jobs_started.clone()))?;
+        m.registry.register(Box::new(m.replica_info.clone()))?;
         Ok(m)
     }
 

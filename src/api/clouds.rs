@@ -16,11 +16,11 @@ use serde_json::{Map, Value};
 
 use super::jobs::prefer_wait;
 use super::submit::{
-    blocking_err, describe_input, input_bytes, queue_job, read_body, reject_nulls, request_key,
-    respond, store_input, touch_asset,
+    describe_input, input_bytes, queue_job, read_body, reject_nulls, request_key, respond,
+    store_input, touch_asset,
 };
 use super::AppState;
-use crate::clouds::{is_scene_id, SceneError, SceneRecord, VersionRecord, VersionStatus};
+use crate::clouds::{is_scene_id, SceneRecord, VersionRecord, VersionStatus};
 use crate::error::ApiError;
 use crate::jobs::{AuxInput, InputRef};
 use phenomena_engine::ParamError;
@@ -96,15 +96,6 @@ impl From<SceneRecord> for SceneView {
     }
 }
 
-impl From<SceneError> for ApiError {
-    fn from(e: SceneError) -> Self {
-        match e {
-            SceneError::NotFound(d) => ApiError::NotFound(format!("no cloud scene {d}")),
-            SceneError::Store(s) => s.into(),
-        }
-    }
-}
-
 fn object(v: &Value, field: &str) -> Result<Map<String, Value>, ApiError> {
     v.as_object()
         .cloned()
@@ -158,12 +149,10 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
         filename: asset.filename,
         aux: Vec::new(),
     };
-    let clouds = st.clouds.clone();
-    let scene = tokio::task::spawn_blocking(move || {
-        clouds.create(volume, input_opts, info, Value::Object(state))
-    })
-    .await
-    .map_err(blocking_err)??;
+    let scene = st
+        .clouds
+        .create(volume, input_opts, info, Value::Object(state))
+        .await?;
     let view = SceneView::from(scene);
     let mut resp = (StatusCode::CREATED, Json(&view)).into_response();
     if let Ok(v) = HeaderValue::from_str(&view.url) {
@@ -174,24 +163,19 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
 
 /// The scene with every version whose job has ended settled (ready or failed).
 async fn settled(st: &AppState, id: &str) -> Result<SceneRecord, ApiError> {
-    if !is_scene_id(id) || st.clouds.get(id).is_none() {
+    if !is_scene_id(id) || st.clouds.get(id).await?.is_none() {
         return Err(ApiError::NotFound(format!("no cloud scene {id}")));
     }
-    let ended: Vec<_> = st
-        .clouds
-        .pending_jobs(Some(id))
-        .iter()
-        .filter_map(|j| st.jobs.get(j))
-        .filter(|r| r.status.is_terminal())
-        .collect();
-    if !ended.is_empty() {
-        let clouds = st.clouds.clone();
-        tokio::task::spawn_blocking(move || ended.iter().try_for_each(|r| clouds.resolve(r)))
-            .await
-            .map_err(blocking_err)??;
+    for job in st.clouds.pending_jobs(Some(id)).await? {
+        if let Some(rec) = st.jobs.get(&job).await? {
+            if rec.status.is_terminal() {
+                st.clouds.resolve(&rec).await?;
+            }
+        }
     }
     st.clouds
         .get(id)
+        .await?
         .ok_or_else(|| ApiError::NotFound(format!("no cloud scene {id}")))
 }
 
@@ -211,10 +195,7 @@ pub async fn delete(
     if !is_scene_id(&id) {
         return Err(ApiError::NotFound(format!("no cloud scene {id}")));
     }
-    let clouds = st.clouds.clone();
-    tokio::task::spawn_blocking(move || clouds.delete(&id))
-        .await
-        .map_err(blocking_err)??;
+    st.clouds.delete(&id).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -359,9 +340,9 @@ pub async fn render(
     let params = st.jobs.pipelines().params(RENDER, &Value::Object(params))?;
     let (input, key_input) = version_input(&scene, &v);
     let key = request_key(RENDER, &key_input, &params);
-    let rec = match st.jobs.find_by_key(&key) {
+    let rec = match st.jobs.find_by_key(&key).await? {
         Some(rec) => rec,
-        None => queue_job(&st, RENDER, input, params, key)?,
+        None => queue_job(&st, RENDER, input, params, key).await?,
     };
     respond(&st, rec, wait).await
 }
@@ -420,20 +401,14 @@ pub async fn edit(
         .map_err(edit_field)?;
     let (input, key_input) = version_input(&scene, &base);
     let key = request_key(EDIT, &key_input, &params);
-    let job = match st.jobs.find_by_key(&key) {
+    let job = match st.jobs.find_by_key(&key).await? {
         Some(rec) => rec,
-        None => queue_job(&st, EDIT, input, params, key)?,
+        None => queue_job(&st, EDIT, input, params, key).await?,
     };
-    let version = {
-        let clouds = st.clouds.clone();
-        let job = job.clone();
-        let id = id.clone();
-        tokio::task::spawn_blocking(move || {
-            clouds.add_version(&id, base.version, kind, Value::Object(body), &job)
-        })
-        .await
-        .map_err(blocking_err)??
-    };
+    let version = st
+        .clouds
+        .add_version(&id, base.version, kind, Value::Object(body), &job)
+        .await?;
     // The job may have ended between its submission and the version's creation.
     if let Some(wait) = wait {
         st.jobs.wait(&job.id, wait).await;

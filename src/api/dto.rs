@@ -29,6 +29,8 @@ pub struct JobView {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub finished_at: Option<String>,
     pub attempts: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub worker: Option<String>,
     pub input: crate::jobs::InputRef,
     pub params: serde_json::Value,
     pub timings: Vec<StageTiming>,
@@ -68,6 +70,7 @@ impl From<JobRecord> for JobView {
             started_at: r.started_at.map(ts),
             finished_at: r.finished_at.map(ts),
             attempts: r.attempts,
+            worker: r.worker,
             input: r.input,
             params: r.params,
             timings: r.timings,

@@ -52,11 +52,13 @@ pub(super) fn job_response(rec: JobRecord, waited: Option<Duration>) -> Response
     resp
 }
 
-fn find(st: &AppState, id: &str) -> Result<JobRecord, ApiError> {
-    is_job_id(id)
-        .then(|| st.jobs.get(id))
-        .flatten()
-        .ok_or_else(|| ApiError::NotFound(format!("no job {id}")))
+async fn find(st: &AppState, id: &str) -> Result<JobRecord, ApiError> {
+    let found = if is_job_id(id) {
+        st.jobs.get(id).await?
+    } else {
+        None
+    };
+    found.ok_or_else(|| ApiError::NotFound(format!("no job {id}")))
 }
 
 /// `GET /v1/jobs/{id}`; honours `Prefer: wait=N`.
@@ -65,7 +67,7 @@ pub async fn get(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let rec = find(&st, &id)?;
+    let rec = find(&st, &id).await?;
     let wait = prefer_wait(&headers, st.cfg.max_wait_secs);
     let rec = match wait {
         Some(w) if !rec.status.is_terminal() => st.jobs.wait(&id, w).await.unwrap_or(rec),
@@ -104,7 +106,7 @@ pub async fn list(
             return Err(ApiError::bad_field("cursor", "cursor must be a job id"));
         }
     }
-    let (jobs, next_cursor) = st.jobs.list(limit, q.cursor.as_deref());
+    let (jobs, next_cursor) = st.jobs.list(limit, q.cursor.as_deref()).await?;
     Ok(Json(JobList {
         jobs: jobs.into_iter().map(JobView::from).collect(),
         next_cursor,
@@ -116,12 +118,12 @@ pub async fn cancel(
     State(st): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    find(&st, &id)?;
-    match st.jobs.cancel(&id) {
+    find(&st, &id).await?;
+    match st.jobs.cancel(&id).await {
         Ok(rec) => Ok(job_response(rec, None)),
         Err(CancelError::NotFound(_)) => Err(ApiError::NotFound(format!("no job {id}"))),
         Err(e @ CancelError::Finished { .. }) => Err(ApiError::Conflict(e.to_string())),
-        Err(CancelError::Store(e)) => Err(e.into()),
+        Err(CancelError::Backend(e)) => Err(e.into()),
     }
 }
 
@@ -131,10 +133,11 @@ pub async fn events(
     State(st): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
-    find(&st, &id)?;
+    find(&st, &id).await?;
     let rx = st
         .jobs
         .subscribe(&id)
+        .await?
         .ok_or_else(|| ApiError::NotFound(format!("no job {id}")))?;
     let jobs = st.jobs.clone();
     let shutdown = st.shutdown.clone();
@@ -155,7 +158,7 @@ pub async fn events(
             }
             let snap = rx.borrow_and_update().clone();
             if snap.status.is_terminal() {
-                let view = jobs.get(&id).map(JobView::from);
+                let view = jobs.get(&id).await.ok().flatten().map(JobView::from);
                 let data = serde_json::to_string(&view).unwrap_or_else(|_| "null".into());
                 return Some((
                     Ok(Event::default().event("done").data(data)),
@@ -178,7 +181,7 @@ pub async fn output(
     Path((id, name)): Path<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let rec = find(&st, &id)?;
+    let rec = find(&st, &id).await?;
     if !rec.status.is_terminal() {
         return Err(ApiError::Conflict(format!(
             "job {id} is {}; outputs appear when it succeeds",

@@ -66,6 +66,16 @@ pub const ROUTES: &[(&str, &str)] = &[
 
 /// The application router (no socket: tests drive it with `tower::ServiceExt::oneshot`).
 pub fn app(state: AppState) -> Router {
+    if state.cfg.role == crate::config::Role::Worker {
+        // A worker replica answers only its probes and metrics; clients talk to `api` replicas.
+        return Router::new()
+            .route("/healthz", get(system::healthz))
+            .route("/readyz", get(system::readyz))
+            .route("/metrics", get(system::metrics))
+            .fallback(fallback)
+            .layer(middleware::from_fn_with_state(state.clone(), track))
+            .with_state(state);
+    }
     let mut router = Router::new()
         .route("/healthz", get(system::healthz))
         .route("/readyz", get(system::readyz))

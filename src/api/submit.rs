@@ -78,7 +78,11 @@ pub async fn submit(
     // A JSON body names its asset: an identical request already queued, running or done is
     // answered before any file I/O or thread hop (the cached-submit hot path).
     if let Input::Named(id) = &input {
-        if let Some(rec) = st.jobs.find_by_key(&request_key(pipeline, id, &params)) {
+        if let Some(rec) = st
+            .jobs
+            .find_by_key(&request_key(pipeline, id, &params))
+            .await?
+        {
             return respond(&st, rec, wait).await;
         }
     }
@@ -87,7 +91,7 @@ pub async fn submit(
     let key = request_key(pipeline, &asset.id, &params);
 
     // An identical request already queued, running or done: no decode, no new job.
-    if let Some(rec) = st.jobs.find_by_key(&key) {
+    if let Some(rec) = st.jobs.find_by_key(&key).await? {
         return respond(&st, rec, wait).await;
     }
 
@@ -113,19 +117,19 @@ pub(super) async fn submit_job(
     key: String,
     wait: Option<std::time::Duration>,
 ) -> Result<Response, ApiError> {
-    let rec = queue_job(st, pipeline, input, params, key)?;
+    let rec = queue_job(st, pipeline, input, params, key).await?;
     respond(st, rec, wait).await
 }
 
 /// Queues a job (or joins an identical one), mapping a full queue to 429.
-pub(super) fn queue_job(
+pub(super) async fn queue_job(
     st: &AppState,
     pipeline: &str,
     input: InputRef,
     params: serde_json::Value,
     key: String,
 ) -> Result<crate::jobs::JobRecord, ApiError> {
-    match st.jobs.submit(pipeline, input, params, key) {
+    match st.jobs.submit(pipeline, input, params, key).await {
         Ok(Submitted::Queued(rec) | Submitted::Reused(rec)) => Ok(rec),
         Err(SubmitError::QueueFull { capacity }) => Err(ApiError::QueueFull {
             detail: format!("the queue is full ({capacity} jobs waiting); retry later"),
@@ -134,7 +138,7 @@ pub(super) fn queue_job(
         Err(SubmitError::ShuttingDown) => {
             Err(ApiError::Unavailable("the service is shutting down".into()))
         }
-        Err(SubmitError::Store(e)) => Err(e.into()),
+        Err(SubmitError::Backend(e)) => Err(e.into()),
     }
 }
 

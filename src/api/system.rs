@@ -31,10 +31,18 @@ pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value
             "the data directory is not writable".into(),
         ));
     }
-    let (queued, running) = st.jobs.load();
-    Ok(Json(
-        json!({ "status": "ready", "queued": queued, "running": running }),
-    ))
+    st.jobs.check().await?;
+    let load = st.jobs.load().await?;
+    Ok(Json(json!({
+        "status": "ready",
+        "queued": load.queued,
+        "running": load.running,
+        "backend": st.jobs.kind(),
+        "role": st.cfg.role.as_str(),
+        "replica": st.cfg.replica_id,
+        "running_here": load.running_here,
+        "workers": load.workers,
+    })))
 }
 
 /// `GET /metrics`: Prometheus text exposition.

@@ -100,13 +100,17 @@ pub struct JobRecord {
     pub outputs: Vec<OutputRecord>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<JobError>,
-    /// How many times a worker started this job (more than 1 after a crash and restart).
+    /// How many times a worker started this job (more than 1 after a crash and restart, or after
+    /// another replica took over a dead worker's job).
     #[serde(default)]
     pub attempts: u32,
+    /// The replica running (or that ran) the job's latest attempt.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub worker: Option<String>,
 }
 
 /// Live progress of a job, broadcast to SSE listeners and waiters.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Snapshot {
     pub status: Status,
     pub progress: f32,

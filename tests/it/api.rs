@@ -11,9 +11,11 @@ fn id_of(v: &Value) -> String {
     v["id"].as_str().unwrap().to_string()
 }
 
+crate::on_each_backend! {
+
 #[tokio::test]
 async fn submit_poll_and_download_with_etag() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let resp = s.sleepy(json!({"stages": 3, "ms": 20}), b"hello dem").await;
     assert_eq!(resp.status().as_u16(), 202);
     let loc = resp.headers()["location"].to_str().unwrap().to_string();
@@ -77,7 +79,7 @@ async fn submit_poll_and_download_with_etag() {
 
 #[tokio::test]
 async fn prefer_wait_returns_the_finished_job() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let form = reqwest::multipart::Form::new()
         .text("params", json!({"stages": 2, "ms": 30}).to_string())
         .part(
@@ -110,7 +112,7 @@ async fn prefer_wait_returns_the_finished_job() {
 
 #[tokio::test]
 async fn events_stream_progress_then_done() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let job: Value = s
         .sleepy(json!({"stages": 4, "ms": 60}), b"sse")
         .await
@@ -166,7 +168,7 @@ async fn events_stream_progress_then_done() {
 
 #[tokio::test]
 async fn cancel_running_and_queued_jobs() {
-    let s = Server::start(|c| c.concurrency = 1).await;
+    let s = start(|c| c.concurrency = 1).await;
     let a: Value = s
         .sleepy(json!({"stages": 100, "ms": 50}), b"a")
         .await
@@ -228,7 +230,7 @@ async fn cancel_running_and_queued_jobs() {
 
 #[tokio::test]
 async fn assets_upload_once_and_jobs_name_them() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let resp = s
         .client
         .post(s.url("/v1/assets?filename=a.bin"))
@@ -304,7 +306,7 @@ async fn assets_upload_once_and_jobs_name_them() {
 
 #[tokio::test]
 async fn identical_requests_reuse_the_job() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let a: Value = s
         .sleepy(json!({"stages": 2, "ms": 50}), b"same")
         .await
@@ -367,7 +369,7 @@ async fn identical_requests_reuse_the_job() {
 
 #[tokio::test]
 async fn a_full_queue_answers_429_with_retry_after() {
-    let s = Server::start(|c| {
+    let s = start(|c| {
         c.concurrency = 1;
         c.queue_capacity = 1;
     })
@@ -398,7 +400,7 @@ async fn a_full_queue_answers_429_with_retry_after() {
 
 #[tokio::test]
 async fn bad_requests_get_problem_json() {
-    let s = Server::start(|c| c.max_body_bytes = 4096).await;
+    let s = start(|c| c.max_body_bytes = 4096).await;
     // Not multipart or JSON.
     let resp = s
         .client
@@ -495,7 +497,7 @@ async fn bad_requests_get_problem_json() {
 
 #[tokio::test]
 async fn a_panicking_pipeline_fails_only_its_job() {
-    let s = Server::start(|c| c.concurrency = 1).await;
+    let s = start(|c| c.concurrency = 1).await;
     let bad: Value = s
         .sleepy(json!({"panic": true}), b"p")
         .await
@@ -521,7 +523,7 @@ async fn a_panicking_pipeline_fails_only_its_job() {
 
 #[tokio::test]
 async fn the_time_limit_fails_a_long_job() {
-    let s = Server::start(|c| c.job_timeout_secs = 1).await;
+    let s = start(|c| c.job_timeout_secs = 1).await;
     let j: Value = s
         .sleepy(json!({"ms": 10_000}), b"slow")
         .await
@@ -538,7 +540,7 @@ async fn the_time_limit_fails_a_long_job() {
 
 #[tokio::test]
 async fn health_readiness_and_metrics() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let h: Value = s
         .client
         .get(s.url("/healthz"))
@@ -581,7 +583,7 @@ async fn health_readiness_and_metrics() {
 
 #[tokio::test]
 async fn graceful_shutdown_requeues_and_restart_finishes() {
-    let s = Server::start(|c| {
+    let s = start(|c| {
         c.shutdown_grace_secs = 0;
         c.concurrency = 1;
     })
@@ -609,7 +611,7 @@ async fn graceful_shutdown_requeues_and_restart_finishes() {
 
 #[tokio::test]
 async fn retention_expires_finished_jobs_and_reclaims_blobs() {
-    let s = Server::start(|c| {
+    let s = start(|c| {
         c.retention_secs = 0;
         c.sweep_interval_secs = 1;
     })
@@ -677,4 +679,6 @@ async fn retention_expires_finished_jobs_and_reclaims_blobs() {
         );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+}
+
 }

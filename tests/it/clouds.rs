@@ -106,10 +106,12 @@ async fn edit(s: &Server, spec: &Value, scene: &str, kind: &str, body: Value) ->
     v
 }
 
+crate::on_each_backend! {
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_whole_edit_session_over_http() {
     let spec = spec();
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
 
     // Upload: version 1 with the given state, the volume described.
     let r = create(&s, json!({"kappa": 40, "background": "#000000"})).await;
@@ -237,7 +239,7 @@ async fn a_whole_edit_session_over_http() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_edits_and_scenes_are_clear_errors() {
     let spec = spec();
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     // View parameters belong to renders, not scenes.
     let r = create(&s, json!({"width": 100})).await;
     let p = problem(r, 422, "invalid-parameter").await;
@@ -334,7 +336,7 @@ async fn bad_edits_and_scenes_are_clear_errors() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scenes_survive_a_restart() {
-    let s = Server::start(|_| {}).await;
+    let s = start(|_| {}).await;
     let r = create(&s, json!({"kappa": 33})).await;
     let scene: Value = r.json().await.unwrap();
     let id = scene["id"].as_str().unwrap().to_string();
@@ -357,4 +359,6 @@ async fn scenes_survive_a_restart() {
     let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), view()).await;
     let job: Value = r.json().await.unwrap();
     assert!(!render_of(&s, &job).await.is_empty());
+}
+
 }

@@ -169,6 +169,57 @@ impl PipelineSet for WithSleepy {
     }
 }
 
+/// Which job system a test server runs on. The job suites run on both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    Embedded,
+    /// The Redis at `PHENOMENA_TEST_REDIS_URL` (default `redis://127.0.0.1:6379/`), under a key
+    /// prefix of its own, deleted when the test ends.
+    Redis,
+}
+
+/// The Redis the tests use.
+pub fn redis_url() -> String {
+    std::env::var("PHENOMENA_TEST_REDIS_URL").unwrap_or_else(|_| "redis://127.0.0.1:6379/".into())
+}
+
+/// A unique Redis key prefix; its keys are deleted when the guard drops.
+pub struct RedisPrefix(pub String);
+
+impl RedisPrefix {
+    pub fn new() -> Self {
+        RedisPrefix(format!(
+            "phenomena-test-{}",
+            hex::encode(rand::random::<[u8; 6]>())
+        ))
+    }
+}
+
+impl Drop for RedisPrefix {
+    fn drop(&mut self) {
+        let Ok(client) = redis::Client::open(redis_url()) else {
+            return;
+        };
+        let Ok(mut con) = client.get_connection() else {
+            return;
+        };
+        let keys: Vec<String> = redis::cmd("KEYS")
+            .arg(format!("{}:*", self.0))
+            .query(&mut con)
+            .unwrap_or_default();
+        if !keys.is_empty() {
+            let _: Result<(), _> = redis::cmd("DEL").arg(keys).query(&mut con);
+        }
+    }
+}
+
+/// What a stopped server leaves for the next one: its data directory and, with Redis, its keys.
+pub struct Stopped {
+    pub dir: tempfile::TempDir,
+    backend: Backend,
+    redis: Option<RedisPrefix>,
+}
+
 /// A running server; dropped at the end of the test (the runtime ends with the test).
 pub struct Server {
     pub addr: SocketAddr,
@@ -176,6 +227,8 @@ pub struct Server {
     pub dir: tempfile::TempDir,
     pub shutdown: Option<tokio::sync::oneshot::Sender<()>>,
     pub handle: Option<tokio::task::JoinHandle<std::io::Result<()>>>,
+    pub backend: Backend,
+    redis: Option<RedisPrefix>,
 }
 
 pub fn test_config(dir: &std::path::Path) -> Config {
@@ -189,18 +242,44 @@ pub fn test_config(dir: &std::path::Path) -> Config {
 }
 
 impl Server {
-    /// Starts a server with `sleepy` and the engine's pipelines; `tweak` adjusts the config.
+    /// Starts a server with `sleepy` and the engine's pipelines on the embedded job system;
+    /// `tweak` adjusts the config.
     pub async fn start(tweak: impl FnOnce(&mut Config)) -> Server {
-        let dir = tempfile::tempdir().unwrap();
-        Self::start_in(dir, tweak).await
+        Self::start_on(Backend::Embedded, tweak).await
     }
 
-    pub async fn start_in(dir: tempfile::TempDir, tweak: impl FnOnce(&mut Config)) -> Server {
+    /// Like [`Server::start`] on the given job system.
+    pub async fn start_on(backend: Backend, tweak: impl FnOnce(&mut Config)) -> Server {
+        let dir = tempfile::tempdir().unwrap();
+        let redis = (backend == Backend::Redis).then(RedisPrefix::new);
+        Self::start_in(
+            Stopped {
+                dir,
+                backend,
+                redis,
+            },
+            tweak,
+        )
+        .await
+    }
+
+    /// Starts a server on what a stopped one left (a restart).
+    pub async fn start_in(left: Stopped, tweak: impl FnOnce(&mut Config)) -> Server {
+        let Stopped {
+            dir,
+            backend,
+            redis,
+        } = left;
         let mut cfg = test_config(dir.path());
+        if let Some(p) = &redis {
+            cfg.redis_url = Some(redis_url());
+            cfg.redis_prefix = p.0.clone();
+        }
         tweak(&mut cfg);
         let limits = cfg.limits();
-        let state =
-            phenomena::state_with(cfg, Arc::new(WithSleepy(EnginePipelines { limits }))).unwrap();
+        let state = phenomena::state_with(cfg, Arc::new(WithSleepy(EnginePipelines { limits })))
+            .await
+            .unwrap();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
@@ -213,6 +292,8 @@ impl Server {
             dir,
             shutdown: Some(tx),
             handle: Some(handle),
+            backend,
+            redis,
         }
     }
 
@@ -220,15 +301,19 @@ impl Server {
         format!("http://{}{}", self.addr, path)
     }
 
-    /// Stops the server gracefully and returns its data directory.
-    pub async fn stop(mut self) -> tempfile::TempDir {
+    /// Stops the server gracefully and returns what it leaves for a restart.
+    pub async fn stop(mut self) -> Stopped {
         if let Some(tx) = self.shutdown.take() {
             let _ = tx.send(());
         }
         if let Some(h) = self.handle.take() {
             let _ = tokio::time::timeout(Duration::from_secs(20), h).await;
         }
-        self.dir
+        Stopped {
+            dir: self.dir,
+            backend: self.backend,
+            redis: self.redis,
+        }
     }
 
     /// Submits a multipart job.
@@ -337,4 +422,34 @@ pub fn npy_f32(shape: &[u64], data: Vec<f32>) -> Vec<u8> {
     w.extend(data).unwrap();
     w.finish().unwrap();
     out
+}
+
+/// Runs the enclosed tests once per job backend, as `mod embedded` and `mod on_redis`; in each,
+/// `start(tweak)` starts a server on that backend. The same assertions hold for both.
+#[macro_export]
+macro_rules! on_each_backend {
+    ($($item:item)*) => {
+        mod embedded {
+            #[allow(unused_imports)]
+            use super::*;
+            #[allow(dead_code)]
+            async fn start(
+                tweak: impl FnOnce(&mut phenomena::config::Config),
+            ) -> $crate::common::Server {
+                $crate::common::Server::start_on($crate::common::Backend::Embedded, tweak).await
+            }
+            $($item)*
+        }
+        mod on_redis {
+            #[allow(unused_imports)]
+            use super::*;
+            #[allow(dead_code)]
+            async fn start(
+                tweak: impl FnOnce(&mut phenomena::config::Config),
+            ) -> $crate::common::Server {
+                $crate::common::Server::start_on($crate::common::Backend::Redis, tweak).await
+            }
+            $($item)*
+        }
+    };
 }

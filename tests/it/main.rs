@@ -8,6 +8,7 @@ mod common;
 mod conformance;
 mod openapi;
 mod restart;
+mod scale;
 mod security;
 mod snow_cover;
 mod snow_terrain;

@@ -7,21 +7,19 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 
-const BIN: &str = env!("CARGO_BIN_EXE_phenomena");
+pub const BIN: &str = env!("CARGO_BIN_EXE_phenomena");
 
 /// Starts `phenomena serve` on an ephemeral port; returns the child and its address (read from
 /// the JSON log line "listening").
 fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
+    spawn_server_with(data_dir, &["--threads", "2"])
+}
+
+/// Like [`spawn_server`] with more flags.
+pub fn spawn_server_with(data_dir: &std::path::Path, extra: &[&str]) -> (Child, String) {
     let mut child = Command::new(BIN)
-        .args([
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--log-format",
-            "json",
-            "--threads",
-            "2",
-        ])
+        .args(["serve", "--bind", "127.0.0.1:0", "--log-format", "json"])
+        .args(extra)
         .arg("--data-dir")
         .arg(data_dir)
         .env("PHENOMENA_LOG", "info")
@@ -52,8 +50,12 @@ fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
 }
 
 /// A 1536² synthetic terrain (sums of sines), big enough that a job runs for a while.
-fn synthetic_npy() -> Vec<u8> {
-    let n = 1536usize;
+pub fn synthetic_npy() -> Vec<u8> {
+    synthetic_npy_of(1536)
+}
+
+/// A synthetic terrain of n² cells.
+pub fn synthetic_npy_of(n: usize) -> Vec<u8> {
     let mut data = Vec::with_capacity(n * n);
     for r in 0..n {
         for c in 0..n {
@@ -139,12 +141,25 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
         "the job ran again after the crash"
     );
 
-    // The outputs equal an offline CLI run of the same request.
-    let cli_in = dir.path().join("cli-input.npy");
-    std::fs::write(&cli_in, &input).unwrap();
-    let params_file = dir.path().join("params.json");
+    assert_same_as_cli(&client, &addr, &id, dir.path(), &input, &params).await;
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
+
+/// The job's outputs equal an offline CLI run of the same snow-terrain request.
+pub async fn assert_same_as_cli(
+    client: &reqwest::Client,
+    addr: &str,
+    id: &str,
+    scratch: &std::path::Path,
+    input: &[u8],
+    params: &Value,
+) {
+    let cli_in = scratch.join("cli-input.npy");
+    std::fs::write(&cli_in, input).unwrap();
+    let params_file = scratch.join("params.json");
     std::fs::write(&params_file, params.to_string()).unwrap();
-    let out_dir = dir.path().join("cli-out");
+    let out_dir = scratch.join("cli-out");
     let status = Command::new(BIN)
         .args(["render", "snow-terrain", "--quiet", "--input"])
         .arg(&cli_in)
@@ -172,9 +187,7 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
         let offline = std::fs::read(out_dir.join(name)).unwrap();
         assert!(
             served.as_ref() == offline.as_slice(),
-            "{name} differs between the restarted job and the CLI"
+            "{name} differs between the served job and the CLI"
         );
     }
-    child.kill().unwrap();
-    child.wait().unwrap();
 }

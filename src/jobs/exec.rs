@@ -1,18 +1,27 @@
-//! Workers (one tokio task per concurrent job) and the retention sweeper.
-//!
-//! A worker takes the next queued job, reads its input, runs the pipeline on the rayon pool (never
-//! on the async runtime), waits for it with the job's time limit, stores the outputs as blobs and
-//! records the final status. A panic inside a pipeline fails only that job.
+//! Running one job, the same for every backend: read its input from the store, run the pipeline
+//! on the rayon pool (never on the async runtime), wait for it with the job's time limit, store the
+//! outputs as content-addressed blobs (so a job run twice after a crash writes the same blobs) and
+//! return the final record. A panic inside a pipeline fails only that job.
 
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use phenomena_engine::Control;
-use tracing::Instrument;
 
-use super::{CancelReason, JobError, JobRecord, Jobs, Live, OutputRecord, StageTiming, Status};
-use crate::pipelines::RunError;
+use super::{CancelReason, JobError, JobRecord, Live, OutputRecord, StageTiming, Status};
+use crate::metrics::Metrics;
+use crate::pipelines::{PipelineSet, RunError};
+use crate::store::Store;
+
+/// What running a job needs; shared by a backend's workers.
+pub(crate) struct Executor {
+    pub store: Store,
+    pub pipelines: Arc<dyn PipelineSet>,
+    pub pool: rayon::ThreadPool,
+    pub timeout: Duration,
+    pub metrics: Metrics,
+}
 
 /// The pipeline's view of its job: forwards progress to the watch channel, measures each stage's
 /// time, and reports cancellation.
@@ -66,7 +75,7 @@ impl Control for JobControl {
     }
 }
 
-fn failure(kind: &str, title: &str, detail: impl Into<String>) -> JobError {
+pub(crate) fn failure(kind: &str, title: &str, detail: impl Into<String>) -> JobError {
     JobError {
         kind: format!("{}{kind}", crate::error::PROBLEM_BASE),
         title: title.to_string(),
@@ -74,36 +83,11 @@ fn failure(kind: &str, title: &str, detail: impl Into<String>) -> JobError {
     }
 }
 
-/// One worker: runs jobs until the system stops accepting work.
-pub(super) async fn run(jobs: Jobs, index: usize) {
-    loop {
-        if !jobs.accepting() {
-            return;
-        }
-        let notified = jobs.inner.work.notified();
-        match jobs.take_next() {
-            Ok(Some((rec, live))) => {
-                let span = tracing::info_span!("job", job = %rec.id, pipeline = %rec.pipeline, worker = index);
-                let id = rec.id.clone();
-                let done = execute(&jobs, rec, live).instrument(span).await;
-                if let Err(e) = jobs.finish(done) {
-                    tracing::error!(job = %id, error = %e, "could not persist a finished job");
-                }
-            }
-            Ok(None) => notified.await,
-            Err(e) => {
-                tracing::error!(error = %e, "could not start a job; retrying in 1 s");
-                tokio::time::sleep(Duration::from_secs(1)).await;
-            }
-        }
-    }
-}
-
 /// Runs one job to its final record.
-async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
+pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
     let t0 = Instant::now();
     tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
-    let store = jobs.store().clone();
+    let store = ex.store.clone();
     let asset = rec.input.asset.clone();
     let aux_refs = rec.input.aux.clone();
     let read = move || -> Result<_, crate::store::StoreError> {
@@ -147,13 +131,13 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
     });
     let (tx, rx) = tokio::sync::oneshot::channel();
     {
-        let pipelines = jobs.pipelines().clone();
+        let pipelines = ex.pipelines.clone();
         let ctl = ctl.clone();
         let name = rec.pipeline.clone();
         let params = rec.params.clone();
         let filename = rec.input.filename.clone();
         let job_id = rec.id.clone();
-        jobs.inner.pool.spawn(move || {
+        ex.pool.spawn(move || {
             let span = tracing::info_span!("job", job = %job_id, pipeline = %name);
             let _e = span.enter();
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -169,7 +153,7 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
             let _ = tx.send(result);
         });
     }
-    let timeout = jobs.inner.cfg.job_timeout;
+    let timeout = ex.timeout;
     let mut rx = rx;
     let result = match tokio::time::timeout(timeout, &mut rx).await {
         Ok(r) => r,
@@ -183,7 +167,7 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
         rec.timings = std::mem::take(&mut clock.done);
     }
     let total = t0.elapsed().as_secs_f64();
-    let metrics = &jobs.inner.metrics;
+    let metrics = &ex.metrics;
     for s in &rec.timings {
         metrics
             .job_duration
@@ -197,7 +181,7 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
 
     match result {
         Ok(Ok(Ok(outputs))) => {
-            let store = jobs.store().clone();
+            let store = ex.store.clone();
             let stored = tokio::task::spawn_blocking(move || {
                 outputs
                     .into_iter()
@@ -300,49 +284,4 @@ async fn execute(jobs: &Jobs, mut rec: JobRecord, live: Arc<Live>) -> JobRecord 
         }
     }
     rec
-}
-
-/// Deletes expired jobs, assets and unreferenced blobs every `sweep_interval`.
-pub(super) async fn sweeper(jobs: Jobs) {
-    let interval = jobs.inner.cfg.sweep_interval;
-    loop {
-        tokio::time::sleep(interval).await;
-        if !jobs.accepting() {
-            return;
-        }
-        let j = jobs.clone();
-        let res = tokio::task::spawn_blocking(move || sweep_once(&j)).await;
-        match res {
-            Ok(Ok((expired, files, bytes))) => {
-                if expired > 0 || files > 0 {
-                    tracing::info!(
-                        expired_jobs = expired,
-                        blobs_removed = files,
-                        bytes_freed = bytes,
-                        "retention sweep"
-                    );
-                }
-            }
-            Ok(Err(e)) => tracing::warn!(error = %e, "retention sweep failed"),
-            Err(e) => tracing::warn!(error = %e, "retention sweep task failed"),
-        }
-    }
-}
-
-/// One retention pass; also refreshes the store-size gauge.
-pub(crate) fn sweep_once(jobs: &Jobs) -> Result<(usize, u64, u64), crate::store::StoreError> {
-    let retention = chrono::Duration::from_std(jobs.inner.cfg.retention)
-        .unwrap_or(chrono::Duration::days(3650));
-    let cutoff = chrono::Utc::now() - retention;
-    let expired = jobs.expire(cutoff);
-    let assets = jobs.store().expire_assets(cutoff)?;
-    let keep = jobs.referenced_blobs(&assets);
-    // Blobs younger than this may belong to a job that is storing its outputs right now.
-    let min_age = jobs.inner.cfg.retention.min(Duration::from_secs(600));
-    let (files, bytes) = jobs.store().sweep_blobs(&keep, min_age)?;
-    jobs.inner
-        .metrics
-        .store_bytes
-        .set(i64::try_from(jobs.store().blob_bytes()).unwrap_or(i64::MAX));
-    Ok((expired, files, bytes))
 }

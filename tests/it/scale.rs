@@ -1,0 +1,410 @@
+//! Scale-out with real processes: `phenomena serve` replicas sharing one Redis and one store
+//! directory. An API replica takes the jobs, two worker replicas run them; one worker is killed
+//! with SIGKILL mid-job and the other finishes its job with the CLI's bytes; SSE on the API
+//! replica follows the job throughout; a Redis restart during idle time is survived.
+//!
+//! Needs a Redis (`PHENOMENA_TEST_REDIS_URL`, default `redis://127.0.0.1:6379/`; `.ci/run` starts
+//! one) and, for the restart test, the `redis-server` binary.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use futures_util::StreamExt;
+use serde_json::{json, Value};
+
+use crate::common::{redis_url, RedisPrefix};
+use crate::restart::{assert_same_as_cli, spawn_server_with, synthetic_npy, synthetic_npy_of};
+
+/// One replica process; killed when dropped.
+struct Replica {
+    child: Child,
+    addr: String,
+    name: String,
+}
+
+impl Replica {
+    fn spawn(dir: &std::path::Path, redis: &str, prefix: &str, role: &str, name: &str) -> Self {
+        let (child, addr) = spawn_server_with(
+            dir,
+            &[
+                "--threads",
+                "1",
+                "--redis-url",
+                redis,
+                "--redis-prefix",
+                prefix,
+                "--redis-lease-secs",
+                "3",
+                "--role",
+                role,
+                "--replica-id",
+                name,
+                "--sweep-interval-secs",
+                "3600",
+            ],
+        );
+        Replica {
+            child,
+            addr,
+            name: name.to_string(),
+        }
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.addr)
+    }
+}
+
+impl Drop for Replica {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+async fn submit(c: &reqwest::Client, r: &Replica, input: &[u8], params: &Value) -> Value {
+    let form = reqwest::multipart::Form::new()
+        .text("params", params.to_string())
+        .part(
+            "dem",
+            reqwest::multipart::Part::bytes(input.to_vec()).file_name("terrain.npy"),
+        );
+    let resp = c
+        .post(r.url("/v1/snow-terrain"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status().as_u16(), 202);
+    resp.json().await.unwrap()
+}
+
+async fn job(c: &reqwest::Client, r: &Replica, id: &str) -> Value {
+    c.get(r.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap()
+}
+
+/// Waits (bounded) until the job has ended; returns it.
+async fn wait_done(c: &reqwest::Client, r: &Replica, id: &str, limit: Duration) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let j: Value = c
+            .get(r.url(&format!("/v1/jobs/{id}")))
+            .header("prefer", "wait=10")
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] != "queued" && j["status"] != "running" {
+            return j;
+        }
+        assert!(t0.elapsed() < limit, "job {id} did not finish: {j}");
+    }
+}
+
+/// Reads a job's SSE stream to its end; returns (event, data) pairs.
+async fn sse(c: reqwest::Client, url: String) -> Vec<(String, Value)> {
+    let resp = c.get(url).send().await.unwrap();
+    assert_eq!(resp.status().as_u16(), 200);
+    let mut body = resp.bytes_stream();
+    let mut buf = String::new();
+    let mut events = Vec::new();
+    while let Some(chunk) = body.next().await {
+        buf.push_str(&String::from_utf8_lossy(&chunk.unwrap()));
+        while let Some(end) = buf.find("\n\n") {
+            let block: String = buf.drain(..end + 2).collect();
+            let mut event = String::new();
+            let mut data = String::new();
+            for line in block.lines() {
+                if let Some(e) = line.strip_prefix("event:") {
+                    event = e.trim().to_string();
+                } else if let Some(d) = line.strip_prefix("data:") {
+                    data.push_str(d.trim());
+                }
+            }
+            if !event.is_empty() {
+                let done = event == "done";
+                events.push((event, serde_json::from_str(&data).unwrap_or(Value::Null)));
+                if done {
+                    return events;
+                }
+            }
+        }
+    }
+    events
+}
+
+fn metric(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find(|l| l.starts_with(name))
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replicas_share_the_queue_and_a_killed_worker_loses_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = RedisPrefix::new();
+    let redis = redis_url();
+    let api = Replica::spawn(dir.path(), &redis, &prefix.0, "api", "api-1");
+    let mut workers = vec![
+        Replica::spawn(dir.path(), &redis, &prefix.0, "worker", "worker-1"),
+        Replica::spawn(dir.path(), &redis, &prefix.0, "worker", "worker-2"),
+    ];
+    let c = reqwest::Client::new();
+
+    // Every replica is ready and says what it is.
+    let ready: Value = c
+        .get(api.url("/readyz"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(ready["backend"], "redis");
+    assert_eq!(ready["role"], "api");
+    assert_eq!(ready["workers"], json!(0));
+    // A worker replica serves no API.
+    let resp = c.get(workers[0].url("/v1/jobs")).send().await.unwrap();
+    assert_eq!(resp.status().as_u16(), 404);
+
+    // One long job, and small ones queued behind it: all go through the API replica.
+    let long_input = synthetic_npy();
+    let long_params = json!({"width": 1280, "height": 720, "samples": 16, "cell_size": 30.0, "mesh_max_vertices": 20000});
+    let long = submit(&c, &api, &long_input, &long_params).await;
+    let long_id = long["id"].as_str().unwrap().to_string();
+    let small_input = synthetic_npy_of(96);
+    let mut small = Vec::new();
+    for w in [64, 72, 80, 88] {
+        let p = json!({"width": w, "height": 48, "samples": 1, "cell_size": 30.0});
+        small.push((submit(&c, &api, &small_input, &p).await, p));
+    }
+
+    // SSE on the API replica, which runs nothing.
+    let events = tokio::spawn(sse(
+        c.clone(),
+        api.url(&format!("/v1/jobs/{long_id}/events")),
+    ));
+
+    // Kill the long job's worker once it has made progress.
+    let t0 = Instant::now();
+    let victim = loop {
+        let j = job(&c, &api, &long_id).await;
+        if j["status"] == "running" && j["progress"].as_f64().unwrap() > 0.0 {
+            break j["worker"].as_str().unwrap().to_string();
+        }
+        assert_ne!(j["status"], "succeeded", "the job ended before the kill");
+        assert!(t0.elapsed() < Duration::from_secs(120), "{j}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let i = workers.iter().position(|w| w.name == victim).unwrap();
+    let mut dead = workers.remove(i);
+    dead.child.kill().unwrap(); // SIGKILL
+    dead.child.wait().unwrap();
+    let survivor = &workers[0];
+
+    let done = wait_done(&c, &api, &long_id, Duration::from_secs(600)).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    eprintln!(
+        "long job: killed {victim}, finished by {} after {} attempts, timings {}",
+        done["worker"], done["attempts"], done["timings"]
+    );
+    assert_eq!(done["worker"].as_str(), Some(survivor.name.as_str()));
+    assert!(done["attempts"].as_u64().unwrap() >= 2, "{done}");
+    assert_same_as_cli(
+        &c,
+        &api.addr,
+        &long_id,
+        dir.path(),
+        &long_input,
+        &long_params,
+    )
+    .await;
+
+    // Every small job was accepted and completed, by a worker replica, with the CLI's bytes.
+    for (j, _) in &small {
+        let id = j["id"].as_str().unwrap();
+        let d = wait_done(&c, &api, id, Duration::from_secs(300)).await;
+        assert_eq!(d["status"], "succeeded", "{d}");
+        let w = d["worker"].as_str().unwrap();
+        assert!(w.starts_with("worker-"), "{d}");
+    }
+    let (j, p) = &small[0];
+    let scratch = dir.path().join("small");
+    std::fs::create_dir_all(&scratch).unwrap();
+    let id = j["id"].as_str().unwrap();
+    assert_same_as_cli(&c, &api.addr, id, &scratch, &small_input, p).await;
+
+    // The SSE stream on the API replica saw the job run and end.
+    let events = tokio::time::timeout(Duration::from_secs(60), events)
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(
+        events.iter().any(|(e, d)| e == "progress"
+            && d["status"] == "running"
+            && d["progress"].as_f64().unwrap() > 0.0),
+        "{events:?}"
+    );
+    let (last, data) = events.last().unwrap();
+    assert_eq!(last, "done");
+    assert_eq!(data["status"], "succeeded");
+
+    // The survivor counts the job it took over.
+    let m = c
+        .get(survivor.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        metric(&m, "phenomena_jobs_started_total{how=\"reclaimed\"}") >= 1.0,
+        "{m}"
+    );
+    assert_eq!(metric(&m, "phenomena_workers"), 1.0);
+}
+
+/// A private `redis-server` with an append-only file (a restart keeps what it acknowledged).
+struct PrivateRedis {
+    child: Child,
+    port: u16,
+    dir: std::path::PathBuf,
+}
+
+impl PrivateRedis {
+    fn start(port: u16, dir: &std::path::Path) -> Self {
+        let child = Command::new("redis-server")
+            .args([
+                "--port",
+                &port.to_string(),
+                "--bind",
+                "127.0.0.1",
+                "--save",
+                "",
+            ])
+            .args(["--appendonly", "yes", "--appendfsync", "always"])
+            .arg("--dir")
+            .arg(dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("redis-server is installed");
+        let t0 = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "redis did not start"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        PrivateRedis {
+            child,
+            port,
+            dir: dir.to_path_buf(),
+        }
+    }
+
+    /// SIGTERM (Redis flushes and exits), then start again on the same port and directory.
+    fn restart(&mut self) {
+        let _ = Command::new("kill")
+            .arg(self.child.id().to_string())
+            .status();
+        self.child.wait().unwrap();
+        *self = PrivateRedis::start(self.port, &self.dir.clone());
+    }
+}
+
+impl Drop for PrivateRedis {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_redis_restart_during_idle_time_is_survived() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let redis_dir = dir.path().join("redis");
+    std::fs::create_dir_all(&redis_dir).unwrap();
+    let mut redis = PrivateRedis::start(port, &redis_dir);
+    let url = format!("redis://127.0.0.1:{port}/");
+    let data = dir.path().join("data");
+    let r = Replica::spawn(&data, &url, "phenomena", "both", "solo");
+    let c = reqwest::Client::new();
+    let input = synthetic_npy_of(96);
+    let params = json!({"width": 64, "height": 48, "samples": 1, "cell_size": 30.0});
+    let before = submit(&c, &r, &input, &params).await;
+    let before_id = before["id"].as_str().unwrap();
+    let d = wait_done(&c, &r, before_id, Duration::from_secs(120)).await;
+    assert_eq!(d["status"], "succeeded");
+
+    redis.restart();
+
+    // Reconnects by itself: ready again, the finished job is still there, new jobs run.
+    let t0 = Instant::now();
+    loop {
+        let s = c.get(r.url("/readyz")).send().await.unwrap().status();
+        if s.as_u16() == 200 {
+            break;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "not ready again");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let j = job(&c, &r, before_id).await;
+    assert_eq!(j["status"], "succeeded", "{j}");
+    let params2 = json!({"width": 72, "height": 48, "samples": 1, "cell_size": 30.0});
+    let t0 = Instant::now();
+    let after = loop {
+        // The first request after the restart may meet a connection being re-established (503).
+        let form = reqwest::multipart::Form::new()
+            .text("params", params2.to_string())
+            .part(
+                "dem",
+                reqwest::multipart::Part::bytes(input.clone()).file_name("terrain.npy"),
+            );
+        let resp = c
+            .post(r.url("/v1/snow-terrain"))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        if resp.status().as_u16() == 202 {
+            break resp.json::<Value>().await.unwrap();
+        }
+        assert_eq!(resp.status().as_u16(), 503);
+        assert!(t0.elapsed() < Duration::from_secs(30));
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    let after_id = after["id"].as_str().unwrap().to_string();
+    // Progress reaches this replica's waiters again (pub/sub resubscribed).
+    let events = tokio::time::timeout(
+        Duration::from_secs(120),
+        sse(c.clone(), r.url(&format!("/v1/jobs/{after_id}/events"))),
+    )
+    .await
+    .unwrap();
+    assert_eq!(
+        events.last().unwrap().1["status"],
+        "succeeded",
+        "{events:?}"
+    );
+    let scratch = dir.path().join("cli");
+    std::fs::create_dir_all(&scratch).unwrap();
+    assert_same_as_cli(&c, &r.addr, &after_id, &scratch, &input, &params2).await;
+}
