@@ -19,8 +19,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Run the HTTP API with the embedded job system.
-    Serve(ServeArgs),
+    /// Run the HTTP API and its workers (embedded job system, or Redis with `--redis-url`).
+    Serve(Box<ServeArgs>),
     /// Run one pipeline offline: the same code the service's workers run.
     Render(RenderArgs),
 }
@@ -39,7 +39,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Serve(args) => {
-            let cfg = Config::resolve(args)?;
+            let cfg = Config::resolve(*args)?;
             init_tracing(cfg.log_format);
             tracing::info!(config = %serde_json::to_string(&cfg)?, "starting phenomena");
             let rt = tokio::runtime::Builder::new_multi_thread()
