@@ -3,6 +3,9 @@
 
 use crate::InputError;
 
+/// Deepest bracket nesting accepted in a header (a structured dtype of nested records needs ~4).
+const MAX_HEADER_NESTING: usize = 8;
+
 /// The `shape` tuple of the header's dictionary; `None` when the header has no readable shape
 /// (npyz then reports the problem). Errors name `format` (the caller's format label).
 pub(crate) fn header_shape(
@@ -27,6 +30,24 @@ pub(crate) fn header_shape(
         .get(start..start.saturating_add(len))
         .ok_or_else(truncated)?;
     let text = String::from_utf8_lossy(text);
+    // npyz's header parser backtracks exponentially on nested brackets (found by the `dem_npy`
+    // fuzz target: 21 nested `{` took over 10 s). A real header is a flat dict; a structured
+    // dtype nests lists of tuples a few levels deep. Deeper nesting is refused before npyz runs.
+    let mut depth = 0usize;
+    for c in text.chars() {
+        match c {
+            '{' | '[' | '(' => {
+                depth += 1;
+                if depth > MAX_HEADER_NESTING {
+                    return Err(corrupt(format!(
+                        "header nests brackets deeper than {MAX_HEADER_NESTING} levels"
+                    )));
+                }
+            }
+            '}' | ']' | ')' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
     let Some(at) = text.find("'shape'").or_else(|| text.find("\"shape\"")) else {
         return Ok(None);
     };

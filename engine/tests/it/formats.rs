@@ -1099,3 +1099,35 @@ fn max_cells_applies_to_every_real_format() {
         assert!(matches!(e, InputError::TooLarge { .. }), "{path}: {e:?}");
     }
 }
+
+/// Fuzz finding (`fuzz/run.sh`, target `dem_npy`): a header with 21 nested `{` made npyz's
+/// header parser backtrack for over 10 s. Such headers are refused up front, for DEMs and
+/// volumes alike (both read the shape through `npy_header`); the error naming the nesting shows
+/// npyz never ran.
+#[test]
+fn npy_headers_with_deep_nesting_are_refused_at_once() {
+    let header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': (8, 8), {}{}",
+        "{".repeat(21),
+        "}"
+    );
+    let mut h = header.into_bytes();
+    while (10 + h.len() + 1) % 64 != 0 {
+        h.push(b' ');
+    }
+    h.push(b'\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(h.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(&h);
+    bytes.extend_from_slice(&[0u8; 256]);
+    let e = decode_dem(&bytes, Some("x.npy"), &opts()).unwrap_err();
+    assert!(matches!(e, InputError::Corrupt { .. }), "{e:?}");
+    assert!(e.to_string().contains("nests brackets"), "{e}");
+    let v = phenomena_engine::formats::volume::decode_volume(
+        &bytes,
+        Some("x.npy"),
+        &Default::default(),
+    )
+    .unwrap_err();
+    assert!(v.to_string().contains("nests brackets"), "{v}");
+}
