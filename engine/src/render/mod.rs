@@ -9,11 +9,14 @@
 //! - [`raster`]: a z-buffered, binned, parallel triangle rasteriser with perspective-correct
 //!   attributes and the ray caster's adaptive anti-aliasing; draws DEMs with fewer cells than
 //!   output pixels, and meshes.
+//! - [`adaptive`]: the adaptive anti-aliasing loop over the rasteriser (centre samples, then
+//!   the pattern only where neighbouring centres differ).
 //! - [`sheet`]: labelled contact sheets of tiles (the paper's Figs. 11–12).
 //!
 //! World frame (shared with `geom::heightfield` and the glTF writer): X = east, Y = up, Z = south,
 //! right-handed; the grid is centred on the origin horizontally.
 
+pub mod adaptive;
 pub mod camera;
 pub mod image;
 pub mod mesh;

@@ -20,21 +20,19 @@
 //! triangles and triangles with a non-finite vertex (e.g. a NaN height) are skipped. No back-face
 //! culling (terrain is seen from below at grazing angles too).
 //!
-//! **Anti-aliasing** ([`render_adaptive`]): the same scheme and sample pattern as the ray caster.
-//! Every pixel's centre sample is shaded; a pixel whose centre [`Sample::differs`] from a
-//! 4-neighbour's (another kind, a depth jump, a visible colour step) also shades the
-//! [`sample_pattern`] samples (RGSS for 4) and averages them with the centre in linear RGB,
-//! premultiplied by coverage. Visibility is rasterised for all `1 + samples` positions (cheap:
-//! integer adds per sample), shading only where needed. Rejected: shading every sample (≈5× the
-//! shading cost for the same edges) and an analytic-coverage edge pass (does not match the ray
-//! caster's picture).
+//! **Anti-aliasing** lives in [`super::adaptive`] ([`render_adaptive`], re-exported here):
+//! centre samples first, then the pattern samples only at the pixels that need them
+//! ([`Rasterizer::rasterize_masked`]).
+//!
+//! **Visibility buffer.** One `u64` per sample, `1/z` bits over `!id` ([`VisBuffer`]), updated
+//! with one `max` per covered sample.
 //!
 //! **Parallelism and determinism.** Rayon over bands of [`BAND`] rows; a band rasterises its own
 //! binned triangles (plus one apron row above and below for the neighbour test) into its own
 //! buffers and writes only its own rows, so the bytes do not depend on the thread count.
 //! Allocation: the projected vertices (40 B per vertex), screen triangles (80 B each), bins (4 B
-//! per binned triangle), and per band a visibility buffer of `8·(1 + samples)` bytes per pixel and
-//! 16 bytes per pixel of centre samples; nothing per pixel.
+//! per binned triangle), and per band the visibility buffers of [`super::adaptive`]; nothing per
+//! pixel.
 //!
 //! **Cost.** Setup O(vertices + triangles); coverage O(Σ bounding-box pixels × (1 + samples))
 //! integer adds, depth by one plane evaluation per covered sample; shading as the caller's. The
@@ -45,9 +43,8 @@
 
 use rayon::prelude::*;
 
+pub use super::adaptive::{render_adaptive, sample_pattern, Sample, ShadeFn};
 use super::camera::{cross, dot, normalize, sub, Camera};
-use super::image::{linear_to_srgb8, RgbaImage};
-use crate::control::{Canceled, Control};
 
 /// Image rows per band (the unit of parallel work and binning). 32 rows: 19 bands on a 900×600
 /// image (enough to balance 2–4 threads) with a 2-row apron overhead of 6 % (16 rows: 12 %,
@@ -232,24 +229,111 @@ pub struct Rasterizer {
     bins: Vec<u32>,
 }
 
-/// A band's visibility buffer: `ns` sample planes of `width × rows` (triangle id, 1/z), rows
-/// `y0..y0 + rows` of the image.
+/// A band's visibility buffer: `ns` sample planes of `width × rows`, rows `y0..y0 + rows` of
+/// the image. Each sample holds one `u64` key, `(1/z as f32 bits) << 32 | !triangle id` (0 =
+/// empty): for positive `f32` the bit patterns order like the values, so the nearer triangle is
+/// the larger key, and on equal depth the earlier triangle (smaller id, larger `!id`) wins —
+/// one compare-and-select per sample instead of two arrays.
 #[derive(Debug, Default, Clone)]
 pub struct VisBuffer {
     pub y0: usize,
     pub rows: usize,
     pub width: usize,
     pub ns: usize,
-    /// Screen-triangle id per sample (`NO_TRI` = empty); resolve with [`Rasterizer::fragment`].
-    pub tri: Vec<u32>,
-    /// 1/z per sample (0 = empty).
-    pub depth: Vec<f32>,
+    key: Vec<u64>,
+    /// Scratch: per sample offset, the three edge functions' offsets of the current triangle.
+    delta: Vec<[i64; 3]>,
 }
 
 impl VisBuffer {
+    /// Screen-triangle id at sample `s` of pixel (`x`, `y`) (`NO_TRI` = empty); resolve with
+    /// [`Rasterizer::fragment`].
     #[inline]
     pub fn at(&self, s: usize, x: usize, y: usize) -> u32 {
-        self.tri[(s * self.rows + (y - self.y0)) * self.width + x]
+        !(self.key[self.index(s, x, y)] as u32)
+    }
+
+    /// 1/z at sample `s` of pixel (`x`, `y`) (0 = empty).
+    #[inline]
+    pub fn depth(&self, s: usize, x: usize, y: usize) -> f32 {
+        f32::from_bits((self.key[self.index(s, x, y)] >> 32) as u32)
+    }
+
+    #[inline]
+    fn index(&self, s: usize, x: usize, y: usize) -> usize {
+        (s * self.rows + (y - self.y0)) * self.width + x
+    }
+
+    /// Shape the buffer for `ns` planes of rows `y0..y0 + rows`, `width` wide; the contents are
+    /// left as they were (the caller clears what it reads).
+    fn shape(&mut self, y0: usize, rows: usize, width: usize, ns: usize) {
+        self.y0 = y0;
+        self.rows = rows;
+        self.width = width;
+        self.ns = ns;
+        let n = ns * rows * width;
+        if self.key.len() < n {
+            self.key.resize(n, 0);
+        }
+    }
+}
+
+/// One bit per pixel for rows `0..rows` of a band: the pixels whose pattern samples
+/// [`Rasterizer::rasterize_masked`] rasterises.
+#[derive(Debug, Default, Clone)]
+pub struct RowMask {
+    rows: usize,
+    words: usize,
+    bits: Vec<u64>,
+}
+
+impl RowMask {
+    /// All clear, `rows × width`.
+    pub fn reset(&mut self, rows: usize, width: usize) {
+        self.rows = rows;
+        self.words = width.div_ceil(64);
+        self.bits.clear();
+        self.bits.resize(rows * self.words, 0);
+    }
+
+    #[inline]
+    pub fn set(&mut self, r: usize, x: usize) {
+        self.bits[r * self.words + x / 64] |= 1 << (x % 64);
+    }
+
+    #[inline]
+    pub fn get(&self, r: usize, x: usize) -> bool {
+        self.bits[r * self.words + x / 64] >> (x % 64) & 1 != 0
+    }
+
+    /// Row `r`'s words.
+    #[inline]
+    fn row(&self, r: usize) -> &[u64] {
+        &self.bits[r * self.words..(r + 1) * self.words]
+    }
+
+    /// The first and last marked pixel of row `r` within `x0..=x1`, if any.
+    #[inline]
+    fn span(&self, r: usize, x0: usize, x1: usize) -> Option<(usize, usize)> {
+        let row = self.row(r);
+        let (w0, w1) = (x0 / 64, x1 / 64);
+        let lo_mask = |wi: usize| if wi == w0 { !0u64 << (x0 % 64) } else { !0 };
+        let hi_mask = |wi: usize| {
+            if wi == w1 {
+                !0u64 >> (63 - x1 % 64)
+            } else {
+                !0
+            }
+        };
+        let first = (w0..=w1).find_map(|wi| {
+            let m = row[wi] & lo_mask(wi) & hi_mask(wi);
+            (m != 0).then(|| wi * 64 + m.trailing_zeros() as usize)
+        })?;
+        let last = (w0..=w1).rev().find_map(|wi| {
+            let m = row[wi] & lo_mask(wi) & hi_mask(wi);
+            (m != 0).then(|| wi * 64 + 63 - m.leading_zeros() as usize)
+        })?;
+        Some((first, last))
     }
 }
 
@@ -377,7 +461,7 @@ impl Rasterizer {
     }
 
     /// Rasterise rows `y0..y1` (within band `band`'s rows ± 1) at the sample `offsets` (pixel
-    /// fractions in [0, 1)², snapped to 1/256) into `buf`, resized as needed. No allocation
+    /// fractions in [0, 1)², snapped to 1/256) into `buf`, reshaped and cleared. No allocation
     /// once `buf` has grown to size.
     pub fn rasterize_band(
         &self,
@@ -389,16 +473,57 @@ impl Rasterizer {
     ) {
         let w = self.proj.width as usize;
         let rows = y1.saturating_sub(y0);
-        let ns = offsets.len();
-        buf.y0 = y0;
-        buf.rows = rows;
-        buf.width = w;
-        buf.ns = ns;
-        buf.tri.clear();
-        buf.tri.resize(ns * rows * w, NO_TRI);
-        buf.depth.clear();
-        buf.depth.resize(ns * rows * w, 0.0);
-        if rows == 0 || band + 1 >= self.bin_start.len() {
+        buf.shape(y0, rows, w, offsets.len());
+        buf.key[..offsets.len() * rows * w].fill(0);
+        self.raster_rows::<false>(band, y0, y1, offsets, None, buf);
+    }
+
+    /// [`Self::rasterize_band`] for rows `y0..y0 + mask.rows` at the marked pixels of `mask`
+    /// only: the samples of unmarked pixels are left undefined (the caller must not read them).
+    /// Clears only the marked samples; a triangle row is drawn from its first to its last marked
+    /// pixel, and rows without marks are skipped.
+    pub fn rasterize_masked(
+        &self,
+        band: usize,
+        y0: usize,
+        offsets: &[(f64, f64)],
+        mask: &RowMask,
+        buf: &mut VisBuffer,
+    ) {
+        let w = self.proj.width as usize;
+        let (rows, ns) = (mask.rows, offsets.len());
+        buf.shape(y0, rows, w, ns);
+        for r in 0..rows {
+            for (wi, &word) in mask.row(r).iter().enumerate() {
+                let mut m = word;
+                while m != 0 {
+                    let x = wi * 64 + m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    for s in 0..ns {
+                        buf.key[(s * rows + r) * w + x] = 0;
+                    }
+                }
+            }
+        }
+        self.raster_rows::<true>(band, y0, y0 + rows, offsets, Some(mask), buf);
+    }
+
+    /// The coverage loop of [`Self::rasterize_band`] and [`Self::rasterize_masked`] on a
+    /// shaped buffer.
+    #[inline(never)]
+    fn raster_rows<const MASKED: bool>(
+        &self,
+        band: usize,
+        y0: usize,
+        y1: usize,
+        offsets: &[(f64, f64)],
+        mask: Option<&RowMask>,
+        buf: &mut VisBuffer,
+    ) {
+        let w = self.proj.width as usize;
+        let rows = y1.saturating_sub(y0);
+        let ns = offsets.len().min(65);
+        if rows == 0 || w == 0 || band + 1 >= self.bin_start.len() {
             return;
         }
         let offs: [(i64, i64); 65] = {
@@ -408,6 +533,9 @@ impl Rasterizer {
             }
             o
         };
+        let VisBuffer { key, delta, .. } = buf;
+        delta.clear();
+        delta.resize(ns, [0; 3]);
         for &id in &self.bins[self.bin_start[band]..self.bin_start[band + 1]] {
             let t = self.tri(id);
             let (x0, x1) = (
@@ -421,10 +549,16 @@ impl Rasterizer {
             if x0 > x1 || ty0 > ty1 {
                 continue;
             }
+            // Masked: skip the triangle unless one of its rows has a marked pixel under it.
+            if let (true, Some(m)) = (MASKED, mask) {
+                let (xa, xb) = (x0 as usize, x1 as usize);
+                if !(ty0..=ty1).any(|py| m.span(py as usize - y0, xa, xb).is_some()) {
+                    continue;
+                }
+            }
             let e = edges(t);
             let inv_area = 1.0 / e.area2 as f64;
             let step = [e.a[0] * 256, e.a[1] * 256, e.a[2] * 256];
-            let mut delta = [[0i64; 3]; 65];
             for (d, &(ox, oy)) in delta.iter_mut().zip(&offs[..ns]) {
                 *d = [
                     e.a[0] * ox + e.b[0] * oy,
@@ -432,17 +566,26 @@ impl Rasterizer {
                     e.a[2] * ox + e.b[2] * oy,
                 ];
             }
+            let low = u64::from(!id);
             for py in ty0..=ty1 {
-                let (sx, sy) = (x0 * 256, py * 256);
+                let r = py as usize - y0;
+                let (xa, xb) = match (MASKED, mask) {
+                    (true, Some(m)) => match m.span(r, x0 as usize, x1 as usize) {
+                        Some((a, b)) => (a as i64, b as i64),
+                        None => continue,
+                    },
+                    _ => (x0, x1),
+                };
+                let (sx, sy) = (xa * 256, py * 256);
                 let base = [
                     e.a[0] * sx + e.b[0] * sy + e.c[0],
                     e.a[1] * sx + e.b[1] * sy + e.c[1],
                     e.a[2] * sx + e.b[2] * sy + e.c[2],
                 ];
-                for (s, d) in delta[..ns].iter().enumerate() {
+                for (s, d) in delta.iter().enumerate() {
                     let mut ev = [base[0] + d[0], base[1] + d[1], base[2] + d[2]];
-                    let row = (s * rows + (py as usize - y0)) * w;
-                    for px in x0..=x1 {
+                    let row = (s * rows + r) * w;
+                    for slot in &mut key[row + xa as usize..=row + xb as usize] {
                         // Branch-free: coverage is close to random on small triangles, and a
                         // mispredicted branch per sample cost more than the arithmetic.
                         // Edge k is opposite vertex k: λ_k = E_k / area.
@@ -450,11 +593,10 @@ impl Rasterizer {
                             + (ev[1] + e.bias[1]) as f64 * t.w[1]
                             + (ev[2] + e.bias[2]) as f64 * t.w[2])
                             * inv_area) as f32;
-                        let k = row + px as usize;
-                        let (old_d, old_t) = (buf.depth[k], buf.tri[k]);
-                        let take = ((ev[0] | ev[1] | ev[2]) >= 0) & (dw > old_d);
-                        buf.depth[k] = if take { dw } else { old_d };
-                        buf.tri[k] = if take { id } else { old_t };
+                        let inside = ((ev[0] | ev[1] | ev[2]) >= 0) & (dw > 0.0);
+                        let k = (u64::from(dw.to_bits()) << 32) | low;
+                        let cand = if inside { k } else { 0 };
+                        *slot = (*slot).max(cand);
                         ev[0] += step[0];
                         ev[1] += step[1];
                         ev[2] += step[2];
@@ -715,218 +857,6 @@ fn push_tri(
     });
 }
 
-/// Sub-pixel sample offsets in [0, 1)² for `n` samples (clamped to 1..=64): the centre for 1,
-/// RGSS for 4, an n-rooks rotated grid otherwise. Returns the count written to `out`.
-pub fn sample_pattern(n: u32, out: &mut [(f64, f64); 64]) -> usize {
-    let n = n.clamp(1, 64) as usize;
-    match n {
-        1 => out[0] = (0.5, 0.5),
-        4 => {
-            out[..4].copy_from_slice(&[
-                (0.375, 0.125),
-                (0.875, 0.375),
-                (0.125, 0.625),
-                (0.625, 0.875),
-            ]);
-        }
-        _ => {
-            // Column k gets row (k·stride) mod n with a stride near n/φ coprime to n.
-            let mut stride = ((n as f64 / 1.618) as usize).max(1);
-            while gcd(stride, n) != 1 {
-                stride += 1;
-            }
-            for (k, o) in out.iter_mut().take(n).enumerate() {
-                *o = (
-                    (k as f64 + 0.5) / n as f64,
-                    (((k * stride) % n) as f64 + 0.5) / n as f64,
-                );
-            }
-        }
-    }
-    n
-}
-
-fn gcd(a: usize, b: usize) -> usize {
-    if b == 0 {
-        a
-    } else {
-        gcd(b, a % b)
-    }
-}
-
-/// One shaded sample: linear RGB, coverage (0 = transparent) and hit distance (+∞ = background,
-/// −1 = transparent background).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Sample {
-    pub c: [f32; 3],
-    pub a: f32,
-    pub t: f32,
-}
-
-impl Sample {
-    /// True when this and a neighbouring centre sample differ enough that the pixel needs
-    /// super-sampling: another kind (surface / background / transparent), a depth jump over 3 %,
-    /// or a colour step over ~6/255 in a gamma-2 approximation of sRGB.
-    #[inline]
-    pub fn differs(&self, o: &Sample) -> bool {
-        if self.a != o.a || self.t.is_finite() != o.t.is_finite() {
-            return true;
-        }
-        if self.t.is_finite() && (self.t - o.t).abs() > 0.03 * self.t.min(o.t) {
-            return true;
-        }
-        (0..3).any(|ch| (self.c[ch].max(0.0).sqrt() - o.c[ch].max(0.0).sqrt()).abs() > 0.025)
-    }
-}
-
-/// A centre sample reduced to what [`Sample::differs`] compares, with the square roots taken
-/// once per pixel instead of once per comparison (same criterion).
-#[derive(Debug, Clone, Copy, Default)]
-struct Key {
-    a: f32,
-    t: f32,
-    g: [f32; 3],
-}
-
-impl Key {
-    #[inline]
-    fn of(s: &Sample) -> Self {
-        Self {
-            a: s.a,
-            t: s.t,
-            g: s.c.map(|v| v.max(0.0).sqrt()),
-        }
-    }
-
-    #[inline]
-    fn differs(&self, o: &Key) -> bool {
-        if self.a != o.a || self.t.is_finite() != o.t.is_finite() {
-            return true;
-        }
-        if self.t.is_finite() && (self.t - o.t).abs() > 0.03 * self.t.min(o.t) {
-            return true;
-        }
-        (0..3).any(|ch| (self.g[ch] - o.g[ch]).abs() > 0.025)
-    }
-}
-
-/// Write one pixel: average of `sum` (premultiplied) over `n` samples with total coverage
-/// `cover`, sRGB with straight alpha.
-#[inline]
-pub(crate) fn write_pixel(px: &mut [u8], sum: [f32; 3], cover: f32, n: f32) {
-    if cover > 0.0 {
-        let inv = 1.0 / cover;
-        px[0] = linear_to_srgb8(sum[0] * inv);
-        px[1] = linear_to_srgb8(sum[1] * inv);
-        px[2] = linear_to_srgb8(sum[2] * inv);
-        px[3] = (cover / n * 255.0 + 0.5) as u8;
-    } else {
-        px.copy_from_slice(&[0; 4]);
-    }
-}
-
-/// A sample shader for [`render_adaptive`]: `(fragment or None for the background, x, y, row)`.
-pub type ShadeFn<'a> = dyn Fn(Option<&Fragment>, f64, f64, usize) -> Sample + Sync + 'a;
-
-/// Render a rasterised mesh with adaptive anti-aliasing (see the module doc).
-///
-/// `shade(fragment, x, y, row)` shades the sample at image point (`x`, `y`) of pixel row `row`,
-/// with `None` for the background. `samples` extra samples for pixels that need anti-aliasing
-/// (clamped 1..=64; 1 = centre only). `band_done` is called once per finished band (progress).
-/// `checkpoint` per band. Output sRGB with straight alpha.
-pub fn render_adaptive(
-    raster: &Rasterizer,
-    samples: u32,
-    shade: &ShadeFn,
-    ctl: &dyn Control,
-    band_done: &(dyn Fn() + Sync),
-) -> Result<RgbaImage, Canceled> {
-    let (w, h) = (raster.proj.width as usize, raster.proj.height as usize);
-    let mut img = RgbaImage {
-        width: raster.proj.width,
-        height: raster.proj.height,
-        data: vec![0u8; w * h * 4],
-    };
-    let mut pattern = [(0.0, 0.0); 64];
-    let ns = if samples.clamp(1, 64) > 1 {
-        sample_pattern(samples, &mut pattern)
-    } else {
-        0
-    };
-    // Sample 0 is the centre, 1..=ns the pattern.
-    let mut offsets = [(0.5, 0.5); 65];
-    offsets[1..=ns].copy_from_slice(&pattern[..ns]);
-    let snapped: Vec<(f64, f64)> = offsets[..=ns]
-        .iter()
-        .map(|&(x, y)| (snap1(x) as f64 / SUB, snap1(y) as f64 / SUB))
-        .collect();
-    img.data
-        .par_chunks_mut(w * 4 * BAND)
-        .enumerate()
-        .try_for_each_init(
-            || {
-                (
-                    VisBuffer::default(),
-                    Vec::<Sample>::new(),
-                    Vec::<Key>::new(),
-                )
-            },
-            |(vis, centre, keys), (b, out)| {
-                ctl.checkpoint()?;
-                let (c0, c1) = (b * BAND, ((b + 1) * BAND).min(h));
-                let (y0, y1) = (c0.saturating_sub(1), (c1 + 1).min(h));
-                raster.rasterize_band(b, y0, y1, &snapped, vis);
-                // Centre samples of the band and its apron rows.
-                centre.clear();
-                centre.resize((y1 - y0) * w, Sample::default());
-                let (cx, cy) = snapped[0];
-                for y in y0..y1 {
-                    for x in 0..w {
-                        let (sx, sy) = (x as f64 + cx, y as f64 + cy);
-                        let id = vis.at(0, x, y);
-                        let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
-                        centre[(y - y0) * w + x] = shade(f.as_ref(), sx, sy, y);
-                    }
-                }
-                keys.clear();
-                keys.extend(centre.iter().map(Key::of));
-                let at = |x: usize, y: usize| &keys[(y - y0) * w + x];
-                for (ry, row) in out.chunks_mut(w * 4).enumerate() {
-                    let y = c0 + ry;
-                    for (x, px) in row.chunks_exact_mut(4).enumerate() {
-                        let k0 = at(x, y);
-                        let refine = ns > 0
-                            && ((x > 0 && k0.differs(at(x - 1, y)))
-                                || (x + 1 < w && k0.differs(at(x + 1, y)))
-                                || (y > 0 && k0.differs(at(x, y - 1)))
-                                || (y + 1 < h && k0.differs(at(x, y + 1))));
-                        let s0 = &centre[(y - y0) * w + x];
-                        let mut sum = [s0.c[0] * s0.a, s0.c[1] * s0.a, s0.c[2] * s0.a];
-                        let mut cover = s0.a;
-                        let mut n = 1.0f32;
-                        if refine {
-                            for (s, &(ox, oy)) in snapped.iter().enumerate().skip(1) {
-                                let (sx, sy) = (x as f64 + ox, y as f64 + oy);
-                                let id = vis.at(s, x, y);
-                                let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
-                                let smp = shade(f.as_ref(), sx, sy, y);
-                                for (acc, c) in sum.iter_mut().zip(smp.c) {
-                                    *acc += c * smp.a;
-                                }
-                                cover += smp.a;
-                            }
-                            n += ns as f32;
-                        }
-                        write_pixel(px, sum, cover, n);
-                    }
-                }
-                band_done();
-                Ok(())
-            },
-        )?;
-    Ok(img)
-}
-
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -958,7 +888,9 @@ mod tests {
         for b in 0..r.bands() {
             let (y0, y1) = (b * BAND, ((b + 1) * BAND).min(200));
             r.rasterize_band(b, y0, y1, &[(0.5, 0.5)], &mut buf);
-            out.extend_from_slice(&buf.tri);
+            for y in y0..y1 {
+                out.extend((0..200).map(|x| buf.at(0, x, y)));
+            }
         }
         (r, out)
     }

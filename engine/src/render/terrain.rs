@@ -26,7 +26,7 @@
 //! (`cells < RASTER_CELLS_PER_PIXEL × pixels`, factor 1) the triangles are cheaper to rasterise
 //! than the pixels are to ray cast: [`render_with`] builds the grid's triangles (both triangles
 //! of a cell with a nodata corner are dropped, as `cell_hit` does) and draws them with
-//! [`raster::render_adaptive`]. A fragment's perspective-correct barycentrics give the cell
+//! [`render_adaptive_with`]. A fragment's perspective-correct barycentrics give the cell
 //! position (`fx`, `fz`), from which the *same* shading code as a ray hit runs (smooth normals
 //! from the same corner gradients, precomputed per grid point; bilinear albedo; the per-grid-point
 //! sun map; haze from the eye distance with the same depth range); samples that hit no triangle
@@ -79,8 +79,8 @@
 //! and sub-pixel detail get `samples + 1`. A colour step between centres in the same or adjacent
 //! cells is a shading gradient of the (bilinear, continuous) surface, not an edge: super-sampling
 //! it moved the paper case's pixels by ≤ 3/255 on all but 0.02 % of them (worst 12/255) while
-//! cutting the render's CPU by a quarter. The raster path runs the same test in its own band
-//! loop ([`raster_adaptive`], otherwise [`raster::render_adaptive`]'s). Rejected: a fixed
+//! cutting the render's CPU by a quarter. The raster path runs the same test through
+//! [`render_adaptive_with`] (the mesh renderer's loop with `Px`'s test). Rejected: a fixed
 //! `samples` rays per every pixel (3–4× slower for the same edges). Output is sRGB with straight
 //! alpha.
 //!
@@ -99,9 +99,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
+use super::adaptive::{render_adaptive_with, sample_pattern, write_pixel, Sample, Shaded};
 use super::camera::{dot, normalize, Camera};
 use super::image::RgbaImage;
-use super::raster::{self, sample_pattern, write_pixel, Mesh, Projection, Rasterizer, Sample};
+use super::raster::{self, Mesh, Projection, Rasterizer};
 use crate::control::{Canceled, Control};
 
 /// A DEM prepared for rendering. Grid point (`col`, `row`) sits at world
@@ -1325,7 +1326,7 @@ struct RasterSetup<'c> {
     sun_map: bool,
 }
 
-/// The raster path: the grid's triangles through [`raster::render_adaptive`], shaded exactly as
+/// The raster path: the grid's triangles through [`render_adaptive_with`], shaded exactly as
 /// the ray caster shades a hit (the fragment's barycentrics give the cell position). The sun
 /// map (shadow rays) runs in parallel with the mesh, gradients and triangle setup.
 fn render_raster(
@@ -1440,7 +1441,7 @@ fn render_raster(
         let f = n as f32 / bands as f32;
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
-    raster_adaptive(&rast, base.light.samples, &shade, ctl, &report)
+    render_adaptive_with(&rast, base.light.samples, &shade, ctl, &report)
 }
 
 /// A shaded sample and the cell it hit (`u32::MAX` for the background), for the
@@ -1472,7 +1473,12 @@ impl Px {
     }
 }
 
-impl Px {
+impl Shaded for Px {
+    #[inline]
+    fn sample(&self) -> Sample {
+        self.s
+    }
+
     /// True when a pixel whose centre is `self` needs super-sampling because of its neighbour
     /// `o`: another kind (surface / background / transparent), a depth jump over 3 %, or —
     /// unless both centres lie in the same or adjacent cells — a colour step over ~6/255 in a
@@ -1501,97 +1507,6 @@ impl Px {
         // Square roots only here: most neighbours are decided above.
         (0..3).any(|ch| (p.c[ch].max(0.0).sqrt() - q.c[ch].max(0.0).sqrt()).abs() > 0.025)
     }
-}
-
-/// The raster path's sample shader: [`raster::ShadeFn`] returning the hit cell too.
-type TerrainShadeFn<'a> = dyn Fn(Option<&raster::Fragment>, f64, f64, usize) -> Px + Sync + 'a;
-
-/// [`raster::render_adaptive`] with the terrain's anti-aliasing test ([`Px::differs`]): the
-/// same bands, visibility buffers, sample pattern and pixel average; only the refinement
-/// decision differs, so the ray caster and the raster path refine the same pixels.
-fn raster_adaptive(
-    rast: &Rasterizer,
-    samples: u32,
-    shade: &TerrainShadeFn,
-    ctl: &dyn Control,
-    band_done: &(dyn Fn() + Sync),
-) -> Result<RgbaImage, Canceled> {
-    let proj = rast.projection();
-    let (w, h) = (proj.width as usize, proj.height as usize);
-    let mut img = RgbaImage {
-        width: proj.width,
-        height: proj.height,
-        data: vec![0u8; w * h * 4],
-    };
-    let mut pattern = [(0.0, 0.0); 64];
-    let ns = if samples.clamp(1, 64) > 1 {
-        sample_pattern(samples, &mut pattern)
-    } else {
-        0
-    };
-    // Sample 0 is the centre, 1..=ns the pattern, snapped to the rasteriser's 1/256 pixel.
-    let snap = |o: f64| ((o * 256.0).round()).clamp(0.0, 255.0) / 256.0;
-    let snapped: Vec<(f64, f64)> = std::iter::once((0.5, 0.5))
-        .chain(pattern[..ns].iter().copied())
-        .map(|(x, y)| (snap(x), snap(y)))
-        .collect();
-    let band = raster::BAND;
-    img.data
-        .par_chunks_mut(w * 4 * band)
-        .enumerate()
-        .try_for_each_init(
-            || (raster::VisBuffer::default(), Vec::<Px>::new()),
-            |(vis, centre), (b, out)| {
-                ctl.checkpoint()?;
-                let (c0, c1) = (b * band, ((b + 1) * band).min(h));
-                let (y0, y1) = (c0.saturating_sub(1), (c1 + 1).min(h));
-                rast.rasterize_band(b, y0, y1, &snapped, vis);
-                // Centre samples of the band and its apron rows.
-                centre.clear();
-                let (cx, cy) = snapped[0];
-                for y in y0..y1 {
-                    for x in 0..w {
-                        let (sx, sy) = (x as f64 + cx, y as f64 + cy);
-                        let id = vis.at(0, x, y);
-                        let f = (id != raster::NO_TRI).then(|| rast.fragment(id, sx, sy));
-                        centre.push(shade(f.as_ref(), sx, sy, y));
-                    }
-                }
-                let at = |x: usize, y: usize| &centre[(y - y0) * w + x];
-                for (ry, row) in out.chunks_mut(w * 4).enumerate() {
-                    let y = c0 + ry;
-                    for (x, px) in row.chunks_exact_mut(4).enumerate() {
-                        let k0 = at(x, y);
-                        let refine = ns > 0
-                            && ((x > 0 && k0.differs(at(x - 1, y)))
-                                || (x + 1 < w && k0.differs(at(x + 1, y)))
-                                || (y > 0 && k0.differs(at(x, y - 1)))
-                                || (y + 1 < h && k0.differs(at(x, y + 1))));
-                        let s0 = &centre[(y - y0) * w + x].s;
-                        let mut sum = [s0.c[0] * s0.a, s0.c[1] * s0.a, s0.c[2] * s0.a];
-                        let mut cover = s0.a;
-                        let mut n = 1.0f32;
-                        if refine {
-                            for (si, &(ox, oy)) in snapped.iter().enumerate().skip(1) {
-                                let (sx, sy) = (x as f64 + ox, y as f64 + oy);
-                                let id = vis.at(si, x, y);
-                                let f = (id != raster::NO_TRI).then(|| rast.fragment(id, sx, sy));
-                                let smp = shade(f.as_ref(), sx, sy, y).s;
-                                for (acc, c) in sum.iter_mut().zip(smp.c) {
-                                    *acc += c * smp.a;
-                                }
-                                cover += smp.a;
-                            }
-                            n += ns as f32;
-                        }
-                        write_pixel(px, sum, cover, n);
-                    }
-                }
-                band_done();
-                Ok(())
-            },
-        )?;
-    Ok(img)
 }
 
 /// The direction of a horizon sweep ([`TerrainAccel::sun_visibility_sweep`]).

@@ -244,7 +244,12 @@ fn timings() {
     let paper = mirrored(&src, 400, 200);
     let p = params(json!({"width": 900, "height": 600}));
     run(&paper, &p, &NoControl).unwrap();
-    let reps = 30;
+    // SNOW_TIMINGS_REPS: fewer runs under callgrind (default 30).
+    let reps: u32 = std::env::var("SNOW_TIMINGS_REPS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(30)
+        .max(1);
     let mut walls = Vec::new();
     let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
     let c0 = cpu_ms();

@@ -1,0 +1,288 @@
+//! Adaptive anti-aliasing over the rasteriser ([`super::raster`]): one loop for every renderer
+//! that draws triangles (meshes through [`render_adaptive`], the terrain's raster path through
+//! [`render_adaptive_with`] and its own refinement test).
+//!
+//! **Scheme** (the ray caster's, [`super::terrain`]): every pixel's centre sample is shaded; a
+//! pixel whose centre [`Shaded::differs`] from a 4-neighbour's (another kind, a depth jump, a
+//! visible colour step) also shades the [`sample_pattern`] samples (RGSS for 4) and averages them
+//! with the centre in linear RGB, premultiplied by coverage. Rejected: shading every sample
+//! (≈5× the shading cost for the same edges) and an analytic-coverage edge pass (does not match
+//! the ray caster's picture).
+//!
+//! **Per band of [`BAND`] rows** (rayon; a band writes only its own rows, so the bytes do not
+//! depend on the thread count):
+//! 1. rasterise the *centre* sample of the band's rows plus one apron row above and below;
+//! 2. shade the centres;
+//! 3. mark the pixels to refine (a bit mask per row);
+//! 4. rasterise the pattern samples *only at marked pixels* ([`RowMask`]: each triangle row's
+//!    span is cut to its first and last marked pixel, rows without marks are skipped, and only
+//!    marked pixels of the visibility buffer are cleared);
+//! 5. shade the pattern samples of marked pixels and write the band.
+//!
+//! Visibility at a sample does not depend on which other samples are rasterised, so the picture
+//! is bit-identical to rasterising all `1 + samples` positions everywhere (what this loop did
+//! before, at 5× the coverage work and buffer clears for 4 samples; measured in
+//! `BENCHMARKS.md`, "Snow on terrain").
+//!
+//! **Allocation:** per worker thread, the band's visibility buffers (8 B per pixel for the
+//! centre, 8 B per sample of the band for the pattern), the centre samples (`size_of::<P>()` per
+//! pixel) and the mask (1 bit per pixel); nothing per pixel.
+
+use rayon::prelude::*;
+
+use super::image::{linear_to_srgb8, RgbaImage};
+use super::raster::{Fragment, Rasterizer, RowMask, VisBuffer, BAND, NO_TRI};
+use crate::control::{Canceled, Control};
+
+/// Sub-pixel sample offsets in [0, 1)² for `n` samples (clamped to 1..=64): the centre for 1,
+/// RGSS for 4, an n-rooks rotated grid otherwise. Returns the count written to `out`.
+pub fn sample_pattern(n: u32, out: &mut [(f64, f64); 64]) -> usize {
+    let n = n.clamp(1, 64) as usize;
+    match n {
+        1 => out[0] = (0.5, 0.5),
+        4 => {
+            out[..4].copy_from_slice(&[
+                (0.375, 0.125),
+                (0.875, 0.375),
+                (0.125, 0.625),
+                (0.625, 0.875),
+            ]);
+        }
+        _ => {
+            // Column k gets row (k·stride) mod n with a stride near n/φ coprime to n.
+            let mut stride = ((n as f64 / 1.618) as usize).max(1);
+            while gcd(stride, n) != 1 {
+                stride += 1;
+            }
+            for (k, o) in out.iter_mut().take(n).enumerate() {
+                *o = (
+                    (k as f64 + 0.5) / n as f64,
+                    (((k * stride) % n) as f64 + 0.5) / n as f64,
+                );
+            }
+        }
+    }
+    n
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
+    }
+}
+
+/// One shaded sample: linear RGB, coverage (0 = transparent) and hit distance (+∞ = background,
+/// −1 = transparent background).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Sample {
+    pub c: [f32; 3],
+    pub a: f32,
+    pub t: f32,
+}
+
+impl Sample {
+    /// True when this and a neighbouring centre sample differ enough that the pixel needs
+    /// super-sampling: another kind (surface / background / transparent), a depth jump over 3 %,
+    /// or a colour step over ~6/255 in a gamma-2 approximation of sRGB.
+    #[inline]
+    pub fn differs(&self, o: &Sample) -> bool {
+        Keyed::of(*self).differs(&Keyed::of(*o))
+    }
+}
+
+/// What the adaptive loop needs of a shaded sample: its colour and the refinement test between
+/// neighbouring centre samples.
+pub trait Shaded: Copy + Send {
+    /// The sample's colour, coverage and distance.
+    fn sample(&self) -> Sample;
+    /// True when a pixel whose centre is `self` needs super-sampling because of its neighbour
+    /// `o` (the test must be symmetric for the picture not to depend on scan order).
+    fn differs(&self, o: &Self) -> bool;
+}
+
+/// A sample with the square roots of [`Sample::differs`] taken once per pixel instead of once
+/// per comparison (same criterion).
+#[derive(Debug, Clone, Copy, Default)]
+struct Keyed {
+    s: Sample,
+    g: [f32; 3],
+}
+
+impl Keyed {
+    #[inline]
+    fn of(s: Sample) -> Self {
+        Self {
+            s,
+            g: s.c.map(|v| v.max(0.0).sqrt()),
+        }
+    }
+}
+
+impl Shaded for Keyed {
+    #[inline]
+    fn sample(&self) -> Sample {
+        self.s
+    }
+
+    #[inline]
+    fn differs(&self, o: &Keyed) -> bool {
+        let (p, q) = (&self.s, &o.s);
+        if p.a != q.a || p.t.is_finite() != q.t.is_finite() {
+            return true;
+        }
+        if p.t.is_finite() && (p.t - q.t).abs() > 0.03 * p.t.min(q.t) {
+            return true;
+        }
+        (0..3).any(|ch| (self.g[ch] - o.g[ch]).abs() > 0.025)
+    }
+}
+
+/// Write one pixel: average of `sum` (premultiplied) over `n` samples with total coverage
+/// `cover`, sRGB with straight alpha.
+#[inline]
+pub(crate) fn write_pixel(px: &mut [u8], sum: [f32; 3], cover: f32, n: f32) {
+    if cover > 0.0 {
+        let inv = 1.0 / cover;
+        px[0] = linear_to_srgb8(sum[0] * inv);
+        px[1] = linear_to_srgb8(sum[1] * inv);
+        px[2] = linear_to_srgb8(sum[2] * inv);
+        px[3] = (cover / n * 255.0 + 0.5) as u8;
+    } else {
+        px.copy_from_slice(&[0; 4]);
+    }
+}
+
+/// A sample shader for [`render_adaptive`]: `(fragment or None for the background, x, y, row)`.
+pub type ShadeFn<'a> = dyn Fn(Option<&Fragment>, f64, f64, usize) -> Sample + Sync + 'a;
+
+/// Render a rasterised mesh with adaptive anti-aliasing (see the module doc).
+///
+/// `shade(fragment, x, y, row)` shades the sample at image point (`x`, `y`) of pixel row `row`,
+/// with `None` for the background. `samples` extra samples for pixels that need anti-aliasing
+/// (clamped 1..=64; 1 = centre only). `band_done` is called once per finished band (progress).
+/// `checkpoint` per band. Output sRGB with straight alpha.
+pub fn render_adaptive(
+    raster: &Rasterizer,
+    samples: u32,
+    shade: &ShadeFn,
+    ctl: &dyn Control,
+    band_done: &(dyn Fn() + Sync),
+) -> Result<RgbaImage, Canceled> {
+    let keyed = |f: Option<&Fragment>, x: f64, y: f64, row: usize| Keyed::of(shade(f, x, y, row));
+    render_adaptive_with(raster, samples, &keyed, ctl, band_done)
+}
+
+/// [`render_adaptive`] for any shaded-sample type `P`: the refinement test is `P`'s
+/// [`Shaded::differs`] (the terrain's skips colour steps within a cell's neighbourhood).
+pub fn render_adaptive_with<P: Shaded>(
+    raster: &Rasterizer,
+    samples: u32,
+    shade: &(dyn Fn(Option<&Fragment>, f64, f64, usize) -> P + Sync),
+    ctl: &dyn Control,
+    band_done: &(dyn Fn() + Sync),
+) -> Result<RgbaImage, Canceled> {
+    let proj = raster.projection();
+    let (w, h) = (proj.width as usize, proj.height as usize);
+    let mut img = RgbaImage {
+        width: proj.width,
+        height: proj.height,
+        data: vec![0u8; w * h * 4],
+    };
+    let mut pattern = [(0.0, 0.0); 64];
+    let ns = if samples.clamp(1, 64) > 1 {
+        sample_pattern(samples, &mut pattern)
+    } else {
+        0
+    };
+    // Sample offsets snapped to the rasteriser's 1/256 pixel: the centre, then the pattern.
+    let snap = |(x, y): (f64, f64)| (snap_offset(x), snap_offset(y));
+    let centre_at = [snap((0.5, 0.5))];
+    let pattern: Vec<(f64, f64)> = pattern[..ns].iter().map(|&o| snap(o)).collect();
+    let (cx, cy) = centre_at[0];
+    img.data
+        .par_chunks_mut(w * 4 * BAND)
+        .enumerate()
+        .try_for_each_init(
+            || {
+                (
+                    VisBuffer::default(),
+                    VisBuffer::default(),
+                    Vec::<P>::new(),
+                    RowMask::default(),
+                )
+            },
+            |(vis, vis_aa, centre, mask), (b, out)| {
+                ctl.checkpoint()?;
+                let (c0, c1) = (b * BAND, ((b + 1) * BAND).min(h));
+                let (y0, y1) = (c0.saturating_sub(1), (c1 + 1).min(h));
+                // 1–2. Centre samples of the band and its apron rows.
+                raster.rasterize_band(b, y0, y1, &centre_at, vis);
+                centre.clear();
+                for y in y0..y1 {
+                    for x in 0..w {
+                        let (sx, sy) = (x as f64 + cx, y as f64 + cy);
+                        let id = vis.at(0, x, y);
+                        let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
+                        centre.push(shade(f.as_ref(), sx, sy, y));
+                    }
+                }
+                let at = |x: usize, y: usize| &centre[(y - y0) * w + x];
+                // 3. Pixels to refine.
+                mask.reset(c1 - c0, w);
+                let mut any = false;
+                if ns > 0 {
+                    for y in c0..c1 {
+                        for x in 0..w {
+                            let k0 = at(x, y);
+                            if (x > 0 && k0.differs(at(x - 1, y)))
+                                || (x + 1 < w && k0.differs(at(x + 1, y)))
+                                || (y > 0 && k0.differs(at(x, y - 1)))
+                                || (y + 1 < h && k0.differs(at(x, y + 1)))
+                            {
+                                mask.set(y - c0, x);
+                                any = true;
+                            }
+                        }
+                    }
+                }
+                // 4. Pattern samples at the marked pixels only.
+                if any {
+                    raster.rasterize_masked(b, c0, &pattern, mask, vis_aa);
+                }
+                // 5. Shade and write.
+                for (ry, row) in out.chunks_mut(w * 4).enumerate() {
+                    let y = c0 + ry;
+                    for (x, px) in row.chunks_exact_mut(4).enumerate() {
+                        let s0 = at(x, y).sample();
+                        let mut sum = [s0.c[0] * s0.a, s0.c[1] * s0.a, s0.c[2] * s0.a];
+                        let mut cover = s0.a;
+                        let mut n = 1.0f32;
+                        if any && mask.get(ry, x) {
+                            for (s, &(ox, oy)) in pattern.iter().enumerate() {
+                                let (sx, sy) = (x as f64 + ox, y as f64 + oy);
+                                let id = vis_aa.at(s, x, y);
+                                let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
+                                let smp = shade(f.as_ref(), sx, sy, y).sample();
+                                for (acc, c) in sum.iter_mut().zip(smp.c) {
+                                    *acc += c * smp.a;
+                                }
+                                cover += smp.a;
+                            }
+                            n += ns as f32;
+                        }
+                        write_pixel(px, sum, cover, n);
+                    }
+                }
+                band_done();
+                Ok(())
+            },
+        )?;
+    Ok(img)
+}
+
+/// A sample offset snapped to the rasteriser's 1/256 pixel (kept inside the pixel).
+fn snap_offset(o: f64) -> f64 {
+    (o * 256.0).round().clamp(0.0, 255.0) / 256.0
+}
