@@ -30,7 +30,7 @@
 
 use rayon::prelude::*;
 
-use super::image::{linear_to_srgb8, RgbaImage};
+use super::image::{RgbaImage, Srgb8};
 use super::raster::{Fragment, Rasterizer, RowMask, VisBuffer, BAND, NO_TRI};
 use crate::control::{Canceled, Control};
 
@@ -145,9 +145,10 @@ impl Shaded for Keyed {
 pub(crate) fn write_pixel(px: &mut [u8], sum: [f32; 3], cover: f32, n: f32) {
     if cover > 0.0 {
         let inv = 1.0 / cover;
-        px[0] = linear_to_srgb8(sum[0] * inv);
-        px[1] = linear_to_srgb8(sum[1] * inv);
-        px[2] = linear_to_srgb8(sum[2] * inv);
+        let lut = Srgb8::table();
+        px[0] = lut.encode(sum[0] * inv);
+        px[1] = lut.encode(sum[1] * inv);
+        px[2] = lut.encode(sum[2] * inv);
         px[3] = (cover / n * 255.0 + 0.5) as u8;
     } else {
         px.copy_from_slice(&[0; 4]);
@@ -170,16 +171,22 @@ pub fn render_adaptive(
     ctl: &dyn Control,
     band_done: &(dyn Fn() + Sync),
 ) -> Result<RgbaImage, Canceled> {
-    let keyed = |f: Option<&Fragment>, x: f64, y: f64, row: usize| Keyed::of(shade(f, x, y, row));
+    let keyed = |id: Option<u32>, x: f64, y: f64, row: usize| {
+        let f = id.map(|id| raster.fragment(id, x, y));
+        Keyed::of(shade(f.as_ref(), x, y, row))
+    };
     render_adaptive_with(raster, samples, &keyed, ctl, band_done)
 }
 
 /// [`render_adaptive`] for any shaded-sample type `P`: the refinement test is `P`'s
-/// [`Shaded::differs`] (the terrain's skips colour steps within a cell's neighbourhood).
+/// [`Shaded::differs`] (the terrain's skips colour steps within a cell's neighbourhood), and
+/// `shade(id, x, y, row)` gets the visible screen triangle's id (`None` for the background),
+/// which it resolves itself ([`Rasterizer::fragment`], or [`Rasterizer::source`] when it needs
+/// only the mesh triangle).
 pub fn render_adaptive_with<P: Shaded>(
     raster: &Rasterizer,
     samples: u32,
-    shade: &(dyn Fn(Option<&Fragment>, f64, f64, usize) -> P + Sync),
+    shade: &(dyn Fn(Option<u32>, f64, f64, usize) -> P + Sync),
     ctl: &dyn Control,
     band_done: &(dyn Fn() + Sync),
 ) -> Result<RgbaImage, Canceled> {
@@ -224,24 +231,33 @@ pub fn render_adaptive_with<P: Shaded>(
                     for x in 0..w {
                         let (sx, sy) = (x as f64 + cx, y as f64 + cy);
                         let id = vis.at(0, x, y);
-                        let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
-                        centre.push(shade(f.as_ref(), sx, sy, y));
+                        centre.push(shade((id != NO_TRI).then_some(id), sx, sy, y));
                     }
                 }
                 let at = |x: usize, y: usize| &centre[(y - y0) * w + x];
-                // 3. Pixels to refine.
+                // 3. Pixels to refine: each pair of 4-neighbours is tested once (the test is
+                // symmetric) and marks both of its pixels that lie in the band.
                 mask.reset(c1 - c0, w);
                 let mut any = false;
                 if ns > 0 {
                     for y in c0..c1 {
-                        for x in 0..w {
-                            let k0 = at(x, y);
-                            if (x > 0 && k0.differs(at(x - 1, y)))
-                                || (x + 1 < w && k0.differs(at(x + 1, y)))
-                                || (y > 0 && k0.differs(at(x, y - 1)))
-                                || (y + 1 < h && k0.differs(at(x, y + 1)))
-                            {
+                        for x in 1..w {
+                            if at(x - 1, y).differs(at(x, y)) {
+                                mask.set(y - c0, x - 1);
                                 mask.set(y - c0, x);
+                                any = true;
+                            }
+                        }
+                    }
+                    for y in y0..y1 - 1 {
+                        for x in 0..w {
+                            if at(x, y).differs(at(x, y + 1)) {
+                                if y >= c0 {
+                                    mask.set(y - c0, x);
+                                }
+                                if y + 1 < c1 {
+                                    mask.set(y + 1 - c0, x);
+                                }
                                 any = true;
                             }
                         }
@@ -263,8 +279,7 @@ pub fn render_adaptive_with<P: Shaded>(
                             for (s, &(ox, oy)) in pattern.iter().enumerate() {
                                 let (sx, sy) = (x as f64 + ox, y as f64 + oy);
                                 let id = vis_aa.at(s, x, y);
-                                let f = (id != NO_TRI).then(|| raster.fragment(id, sx, sy));
-                                let smp = shade(f.as_ref(), sx, sy, y).sample();
+                                let smp = shade((id != NO_TRI).then_some(id), sx, sy, y).sample();
                                 for (acc, c) in sum.iter_mut().zip(smp.c) {
                                     *acc += c * smp.a;
                                 }

@@ -91,9 +91,26 @@ fn encode_lut() -> &'static [u8; LUT_SIZE] {
 /// Linear `[0, 1]` → sRGB byte through the table (clamped; NaN gives 0). Cheap: one table read.
 #[inline]
 pub fn linear_to_srgb8(v: f32) -> u8 {
-    // `as usize` saturates and maps NaN to 0.
-    let i = (v * (LUT_SIZE - 1) as f32 + 0.5) as usize;
-    encode_lut()[i.min(LUT_SIZE - 1)]
+    Srgb8::table().encode(v)
+}
+
+/// The table of [`linear_to_srgb8`], fetched once for many pixels.
+#[derive(Clone, Copy)]
+pub struct Srgb8(&'static [u8; LUT_SIZE]);
+
+impl Srgb8 {
+    #[inline]
+    pub fn table() -> Self {
+        Self(encode_lut())
+    }
+
+    /// [`linear_to_srgb8`].
+    #[inline]
+    pub fn encode(self, v: f32) -> u8 {
+        // `as usize` saturates and maps NaN to 0.
+        let i = (v * (LUT_SIZE - 1) as f32 + 0.5) as usize;
+        self.0[i.min(LUT_SIZE - 1)]
+    }
 }
 
 /// sRGB byte → linear `[0, 1]` through a 256-entry table.

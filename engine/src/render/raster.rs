@@ -213,6 +213,8 @@ pub const MAX_TRIANGLES: usize = CHUNK << 16;
 /// The screen triangles of one chunk, their clip table and their band bins.
 struct Part {
     tris: Vec<ScreenTri>,
+    /// `tris[i].src`, packed (shaders that need only the mesh triangle read 4 B, not 80).
+    src: Vec<u32>,
     clipped: Vec<[[f64; 3]; 3]>,
     /// Band b's local ids are `ids[start[b]..start[b + 1]]`.
     start: Vec<u32>,
@@ -243,6 +245,8 @@ pub struct VisBuffer {
     key: Vec<u64>,
     /// Scratch: per sample offset, the three edge functions' offsets of the current triangle.
     delta: Vec<[i64; 3]>,
+    /// Scratch: per sample offset, the current triangle's 1/z plane at the pixel's origin.
+    depth_at: Vec<f64>,
 }
 
 impl VisBuffer {
@@ -312,28 +316,32 @@ impl RowMask {
         &self.bits[r * self.words..(r + 1) * self.words]
     }
 
-    /// The first and last marked pixel of row `r` within `x0..=x1`, if any.
+    /// Calls `f(x)` for every marked pixel of row `r` in `x0..=x1`, left to right.
     #[inline]
-    fn span(&self, r: usize, x0: usize, x1: usize) -> Option<(usize, usize)> {
+    fn for_each(&self, r: usize, x0: usize, x1: usize, mut f: impl FnMut(usize)) {
         let row = self.row(r);
         let (w0, w1) = (x0 / 64, x1 / 64);
-        let lo_mask = |wi: usize| if wi == w0 { !0u64 << (x0 % 64) } else { !0 };
-        let hi_mask = |wi: usize| {
-            if wi == w1 {
-                !0u64 >> (63 - x1 % 64)
-            } else {
-                !0
+        for (wi, &word) in row.iter().enumerate().take(w1 + 1).skip(w0) {
+            let lo = if wi == w0 { x0 % 64 } else { 0 };
+            let hi = if wi == w1 { x1 % 64 } else { 63 };
+            let mut m = word & (!0u64 << lo) & (!0u64 >> (63 - hi));
+            while m != 0 {
+                f(wi * 64 + m.trailing_zeros() as usize);
+                m &= m - 1;
             }
-        };
-        let first = (w0..=w1).find_map(|wi| {
-            let m = row[wi] & lo_mask(wi) & hi_mask(wi);
-            (m != 0).then(|| wi * 64 + m.trailing_zeros() as usize)
-        })?;
-        let last = (w0..=w1).rev().find_map(|wi| {
-            let m = row[wi] & lo_mask(wi) & hi_mask(wi);
-            (m != 0).then(|| wi * 64 + 63 - m.leading_zeros() as usize)
-        })?;
-        Some((first, last))
+        }
+    }
+
+    /// True when a pixel of rows `r0..=r1`, columns `x0..=x1` is marked.
+    #[inline]
+    fn any(&self, r0: usize, r1: usize, x0: usize, x1: usize) -> bool {
+        let (w0, w1) = (x0 / 64, x1 / 64);
+        (w0..=w1).any(|wi| {
+            let lo = if wi == w0 { x0 % 64 } else { 0 };
+            let hi = if wi == w1 { x1 % 64 } else { 63 };
+            let m = (!0u64 << lo) & (!0u64 >> (63 - hi));
+            (r0..=r1).any(|r| self.bits[r * self.words + wi] & m != 0)
+        })
     }
 }
 
@@ -416,6 +424,7 @@ impl Rasterizer {
                     }
                 }
                 Part {
+                    src: tris.iter().map(|t| t.src).collect(),
                     tris,
                     clipped,
                     start,
@@ -533,10 +542,28 @@ impl Rasterizer {
             }
             o
         };
-        let VisBuffer { key, delta, .. } = buf;
+        let VisBuffer {
+            key,
+            delta,
+            depth_at,
+            ..
+        } = buf;
         delta.clear();
         delta.resize(ns, [0; 3]);
-        for &id in &self.bins[self.bin_start[band]..self.bin_start[band + 1]] {
+        depth_at.clear();
+        depth_at.resize(ns, 0.0);
+        let list = &self.bins[self.bin_start[band]..self.bin_start[band + 1]];
+        let n = list.len();
+        // Front to back when the band's list runs back to front (a height field's rows seen
+        // from the far side), so the span depth test below rejects hidden triangles. The keys'
+        // `max` makes the result independent of the order.
+        let nearest = |id: u32| {
+            let w = self.tri(id).w;
+            w[0].max(w[1]).max(w[2])
+        };
+        let reverse = n > 1 && nearest(list[n - 1]) > nearest(list[0]);
+        for j in 0..n {
+            let id = list[if reverse { n - 1 - j } else { j }];
             let t = self.tri(id);
             let (x0, x1) = (
                 i64::from(t.bb[0]).max(0),
@@ -551,13 +578,24 @@ impl Rasterizer {
             }
             // Masked: skip the triangle unless one of its rows has a marked pixel under it.
             if let (true, Some(m)) = (MASKED, mask) {
-                let (xa, xb) = (x0 as usize, x1 as usize);
-                if !(ty0..=ty1).any(|py| m.span(py as usize - y0, xa, xb).is_some()) {
+                let (r0, r1) = (ty0 as usize - y0, ty1 as usize - y0);
+                if !m.any(r0, r1, x0 as usize, x1 as usize) {
                     continue;
                 }
             }
             let e = edges(t);
+            // 1/z as a plane in the fixed-point sample position (X, Y): Σ_k λ_k w_k with
+            // λ_k = (E_k + bias_k) / area.
             let inv_area = 1.0 / e.area2 as f64;
+            let plane = |k: [i64; 3]| {
+                (k[0] as f64 * t.w[0] + k[1] as f64 * t.w[1] + k[2] as f64 * t.w[2]) * inv_area
+            };
+            let (da, db) = (plane(e.a), plane(e.b));
+            let dc = plane([e.c[0] + e.bias[0], e.c[1] + e.bias[1], e.c[2] + e.bias[2]]);
+            let step_d = da * 256.0;
+            // Nearest 1/z of the triangle, padded far beyond the rounding of `dw`: a span whose
+            // samples all hold a nearer surface cannot change.
+            let near_bits = ((t.w[0].max(t.w[1]).max(t.w[2]) * (1.0 + 1e-5)) as f32).to_bits();
             let step = [e.a[0] * 256, e.a[1] * 256, e.a[2] * 256];
             for (d, &(ox, oy)) in delta.iter_mut().zip(&offs[..ns]) {
                 *d = [
@@ -567,15 +605,43 @@ impl Rasterizer {
                 ];
             }
             let low = u64::from(!id);
+            if let (true, Some(m)) = (MASKED, mask) {
+                // Marked pixels only, sample by sample: a refined pixel's samples are few and
+                // scattered, so spans would mostly walk unmarked pixels.
+                for (d, &(ox, oy)) in depth_at.iter_mut().zip(&offs[..ns]) {
+                    *d = da * ox as f64 + db * oy as f64 + dc;
+                }
+                for py in ty0..=ty1 {
+                    let r = py as usize - y0;
+                    let sy = py * 256;
+                    let base = [e.b[0] * sy, e.b[1] * sy, e.b[2] * sy];
+                    let dy = db * sy as f64;
+                    m.for_each(r, x0 as usize, x1 as usize, |x| {
+                        // Early depth test: every sample of the pixel holds a nearer surface.
+                        if (0..ns).all(|s| (key[(s * rows + r) * w + x] >> 32) as u32 > near_bits) {
+                            return;
+                        }
+                        let sx = x as i64 * 256;
+                        let dx = da * sx as f64 + dy;
+                        for (s, d) in delta.iter().enumerate() {
+                            let ev = [
+                                e.a[0] * sx + base[0] + e.c[0] + d[0],
+                                e.a[1] * sx + base[1] + e.c[1] + d[1],
+                                e.a[2] * sx + base[2] + e.c[2] + d[2],
+                            ];
+                            let z = (dx + depth_at[s]) as f32;
+                            if ((ev[0] | ev[1] | ev[2]) >= 0) & (z > 0.0) {
+                                let slot = &mut key[(s * rows + r) * w + x];
+                                *slot = (*slot).max((u64::from(z.to_bits()) << 32) | low);
+                            }
+                        }
+                    });
+                }
+                continue;
+            }
             for py in ty0..=ty1 {
                 let r = py as usize - y0;
-                let (xa, xb) = match (MASKED, mask) {
-                    (true, Some(m)) => match m.span(r, x0 as usize, x1 as usize) {
-                        Some((a, b)) => (a as i64, b as i64),
-                        None => continue,
-                    },
-                    _ => (x0, x1),
-                };
+                let (xa, xb) = (x0, x1);
                 let (sx, sy) = (xa * 256, py * 256);
                 let base = [
                     e.a[0] * sx + e.b[0] * sy + e.c[0],
@@ -583,27 +649,36 @@ impl Rasterizer {
                     e.a[2] * sx + e.b[2] * sy + e.c[2],
                 ];
                 for (s, d) in delta.iter().enumerate() {
-                    let mut ev = [base[0] + d[0], base[1] + d[1], base[2] + d[2]];
                     let row = (s * rows + r) * w;
-                    for slot in &mut key[row + xa as usize..=row + xb as usize] {
+                    let keys = &mut key[row + xa as usize..=row + xb as usize];
+                    if keys.iter().all(|&k| ((k >> 32) as u32) > near_bits) {
+                        continue;
+                    }
+                    let mut ev = [base[0] + d[0], base[1] + d[1], base[2] + d[2]];
+                    let (ox, oy) = offs[s];
+                    let mut dw = da * (sx + ox) as f64 + (db * (sy + oy) as f64 + dc);
+                    for slot in keys {
                         // Branch-free: coverage is close to random on small triangles, and a
                         // mispredicted branch per sample cost more than the arithmetic.
-                        // Edge k is opposite vertex k: λ_k = E_k / area.
-                        let dw = (((ev[0] + e.bias[0]) as f64 * t.w[0]
-                            + (ev[1] + e.bias[1]) as f64 * t.w[1]
-                            + (ev[2] + e.bias[2]) as f64 * t.w[2])
-                            * inv_area) as f32;
-                        let inside = ((ev[0] | ev[1] | ev[2]) >= 0) & (dw > 0.0);
-                        let k = (u64::from(dw.to_bits()) << 32) | low;
+                        let z = dw as f32;
+                        let inside = ((ev[0] | ev[1] | ev[2]) >= 0) & (z > 0.0);
+                        let k = (u64::from(z.to_bits()) << 32) | low;
                         let cand = if inside { k } else { 0 };
                         *slot = (*slot).max(cand);
                         ev[0] += step[0];
                         ev[1] += step[1];
                         ev[2] += step[2];
+                        dw += step_d;
                     }
                 }
             }
         }
+    }
+
+    /// The mesh triangle that screen triangle `id` (from a [`VisBuffer`]) was cut from.
+    #[inline]
+    pub fn source(&self, id: u32) -> u32 {
+        self.parts[(id >> 16) as usize].src[(id & 0xFFFF) as usize]
     }
 
     /// The fragment of screen triangle `id` (from a [`VisBuffer`]) at image point (`x`, `y`):

@@ -99,11 +99,14 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::adaptive::{render_adaptive_with, sample_pattern, write_pixel, Sample, Shaded};
+use super::adaptive::{sample_pattern, write_pixel, Sample, Shaded};
 use super::camera::{dot, normalize, Camera};
 use super::image::RgbaImage;
-use super::raster::{self, Mesh, Projection, Rasterizer};
+use super::raster;
 use crate::control::{Canceled, Control};
+
+mod raster_path;
+use raster_path::{render_raster, RasterSetup};
 
 /// A DEM prepared for rendering. Grid point (`col`, `row`) sits at world
 /// `(col·dx − (width−1)·dx/2, heights[row·width + col], row·dy − (height−1)·dy/2)`.
@@ -441,23 +444,6 @@ impl<'a> TerrainAccel<'a> {
         ];
         let gx = w[0] * g00.0 + w[1] * g10.0 + w[2] * g01.0 + w[3] * g11.0;
         let gz = w[0] * g00.1 + w[1] * g10.1 + w[2] * g01.1 + w[3] * g11.1;
-        normalize([-gx, 1.0, -gz])
-    }
-
-    /// [`Self::hit_normal`] from gradients precomputed per grid point (`gradients()`).
-    fn hit_normal_from(&self, hit: &Hit, g: &[[f64; 2]]) -> [f64; 3] {
-        let w = self.scene.width;
-        let k = hit.row * w + hit.col;
-        let (fx, fz) = (hit.fx, hit.fz);
-        let wt = [
-            (1.0 - fx) * (1.0 - fz),
-            fx * (1.0 - fz),
-            (1.0 - fx) * fz,
-            fx * fz,
-        ];
-        let (a, b, c, d) = (g[k], g[k + 1], g[k + w], g[k + w + 1]);
-        let gx = wt[0] * a[0] + wt[1] * b[0] + wt[2] * c[0] + wt[3] * d[0];
-        let gz = wt[0] * a[1] + wt[1] * b[1] + wt[2] * c[1] + wt[3] * d[1];
         normalize([-gx, 1.0, -gz])
     }
 
@@ -1003,9 +989,6 @@ struct Shader<'s, 'a> {
     eps: f64,
     /// Per-grid-point sun visibility (small DEMs); `None` = a shadow ray per hit.
     sun_map: Option<&'s [u8]>,
-    /// Per-grid-point gradients (dh/dx, dh/dz) precomputed by the raster path; `None` =
-    /// computed per hit.
-    grads: Option<&'s [[f64; 2]]>,
     /// The DEM has nodata points. Without them a miss is drawn as the sky without
     /// [`TerrainAccel::through_footprint`]: a ray that enters the footprint above the edge and
     /// sinks below the lowest height crosses the (continuous) surface, so it is a hit — up to
@@ -1048,10 +1031,7 @@ impl Shader<'_, '_> {
         let albedo = acc.hit_albedo(&hit);
         let mut c = albedo;
         if l.shading {
-            let n = match self.grads {
-                Some(g) => acc.hit_normal_from(&hit, g),
-                None => acc.hit_normal(&hit),
-            };
+            let n = acc.hit_normal(&hit);
             let ndl = dot(n, self.sun);
             let mut direct = 0.0f32;
             if ndl > 0.0 && self.sun[1] > -1.0 {
@@ -1067,20 +1047,27 @@ impl Shader<'_, '_> {
                 c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb);
             }
         }
-        if l.haze > 0.0 {
-            let d = ((hit.t - self.near) * self.inv_range).clamp(0.0, 1.0) as f32;
-            let k = (l.haze * d).clamp(0.0, 1.0);
-            let mean = (c[0] + c[1] + c[2]) / 3.0;
-            for v in &mut c {
-                *v += (mean - *v) * k;
-            }
-            c[0] *= 1.0 - 0.2 * k;
-            c[1] *= 1.0 - 0.1 * k;
-        }
+        self.haze(&mut c, hit.t);
         Sample {
             c,
             a: 1.0,
             t: hit.t as f32,
+        }
+    }
+
+    /// Aerial perspective (SPEC §1 step 8) on colour `c` of a point at distance `t`.
+    #[inline]
+    fn haze(&self, c: &mut [f32; 3], t: f64) {
+        let l = self.light;
+        if l.haze > 0.0 {
+            let d = ((t - self.near) * self.inv_range).clamp(0.0, 1.0) as f32;
+            let k = (l.haze * d).clamp(0.0, 1.0);
+            let mean = (c[0] + c[1] + c[2]) / 3.0;
+            for v in c.iter_mut() {
+                *v += (mean - *v) * k;
+            }
+            c[0] *= 1.0 - 0.2 * k;
+            c[1] *= 1.0 - 0.1 * k;
         }
     }
 
@@ -1232,7 +1219,6 @@ pub fn render_with_path(
         inv_range: if far > near { 1.0 / (far - near) } else { 0.0 },
         eps,
         sun_map: sun_map.as_deref(),
-        grads: None,
         holes: sc.heights.par_iter().any(|v| v.is_nan()),
     };
     if raster {
@@ -1314,136 +1300,6 @@ pub fn render_with_path(
     Ok(img)
 }
 
-/// View parameters of [`render_raster`].
-struct RasterSetup<'c> {
-    camera: &'c Camera,
-    out_w: u32,
-    out_h: u32,
-    /// Distances to the nearest and farthest bounding-box points.
-    near: f64,
-    far: f64,
-    /// Compute the per-grid-point sun map.
-    sun_map: bool,
-}
-
-/// The raster path: the grid's triangles through [`render_adaptive_with`], shaded exactly as
-/// the ray caster shades a hit (the fragment's barycentrics give the cell position). The sun
-/// map (shadow rays) runs in parallel with the mesh, gradients and triangle setup.
-fn render_raster(
-    base: &Shader,
-    v: &RasterSetup,
-    ctl: &dyn Control,
-    frac: (f32, f32),
-) -> Result<RgbaImage, Canceled> {
-    let (camera, out_w, out_h) = (v.camera, v.out_w, v.out_h);
-    let accel = base.accel;
-    let s = accel.scene();
-    let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
-    let prepare = || {
-        // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in
-        // the ray caster, so triangle k belongs to cell k / 2.
-        let positions: Vec<[f64; 3]> = (0..s.width * s.height)
-            .into_par_iter()
-            .map(|k| {
-                let (c, r) = (k % gw, k / gw);
-                [
-                    c as f64 * s.dx - accel.half_x,
-                    f64::from(s.heights[k]),
-                    r as f64 * s.dy - accel.half_z,
-                ]
-            })
-            .collect();
-        let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(2 * cw * ch);
-        for j in 0..ch {
-            for i in 0..cw {
-                let k = (j * gw + i) as u32;
-                let g = gw as u32;
-                let hs = &s.heights[k as usize..];
-                if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
-                    // A hole: any nodata corner removes both triangles (as in `cell_hit`);
-                    // degenerate triangles keep the index ↔ cell mapping and are skipped.
-                    triangles.extend([[k; 3], [k; 3]]);
-                } else {
-                    triangles.extend([[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]);
-                }
-            }
-        }
-        // Near plane: half the distance to the bounding box, but not so close that 1/z loses
-        // the far range (geometry nearer than it would fill the view anyway).
-        let near_plane = (0.5 * v.near).max(1e-6 * v.far).max(1e-9);
-        let proj = Projection::new(camera, out_w, out_h, near_plane);
-        let rast = Rasterizer::new(
-            &Mesh {
-                positions: &positions,
-                triangles: &triangles,
-            },
-            &proj,
-        );
-        (rast, accel.gradients())
-    };
-    let (map, (rast, grads)) = rayon::join(
-        || {
-            v.sun_map
-                .then(|| accel.sun_visibility(base.sun, base.eps, ctl))
-                .transpose()
-        },
-        prepare,
-    );
-    let map = map?;
-    ctl.checkpoint()?;
-    let shader = Shader {
-        grads: Some(&grads),
-        sun_map: map.as_deref(),
-        ..*base
-    };
-    let gen = camera.ray_gen(out_w, out_h);
-    let inv_h = 1.0 / f64::from(out_h.max(1));
-    let shade = |f: Option<&raster::Fragment>, x: f64, y: f64, row: usize| -> Px {
-        let y_frac = ((row as f64 + 0.5) * inv_h) as f32;
-        let Some(f) = f else {
-            if !shader.holes {
-                return Px::background(Sample {
-                    c: shader.sky(y_frac),
-                    a: 1.0,
-                    t: f32::INFINITY,
-                });
-            }
-            return Px::background(shader.miss(gen.dir(x, y), y_frac));
-        };
-        let cell = f.triangle as usize / 2;
-        let (col, row) = (cell % cw.max(1), cell / cw.max(1));
-        let b = f.bary;
-        let (fx, fz) = if f.triangle % 2 == 0 {
-            (b[1] + b[2], b[2])
-        } else {
-            (b[2], b[1] + b[2])
-        };
-        let mut hit = Hit {
-            t: 0.0,
-            col,
-            row,
-            fx: fx.clamp(0.0, 1.0),
-            fz: fz.clamp(0.0, 1.0),
-        };
-        let p = accel.hit_position(&hit);
-        let d = [
-            p[0] - shader.eye[0],
-            p[1] - shader.eye[1],
-            p[2] - shader.eye[2],
-        ];
-        hit.t = dot(d, d).sqrt();
-        Px::hit(shader.shade_hit(&hit), &hit)
-    };
-    let bands = rast.bands().max(1);
-    let done = AtomicUsize::new(0);
-    let report = || {
-        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-        let f = n as f32 / bands as f32;
-        ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
-    };
-    render_adaptive_with(&rast, base.light.samples, &shade, ctl, &report)
-}
-
 /// A shaded sample and the cell it hit (`u32::MAX` for the background), for the
 /// anti-aliasing test [`Px::differs`].
 #[derive(Debug, Clone, Copy, Default)]
@@ -1504,8 +1360,10 @@ impl Shaded for Px {
                 return false;
             }
         }
-        // Square roots only here: most neighbours are decided above.
-        (0..3).any(|ch| (p.c[ch].max(0.0).sqrt() - q.c[ch].max(0.0).sqrt()).abs() > 0.025)
+        // Square roots only here: most neighbours are decided above (and equal colours, e.g.
+        // the sky along a row, need none).
+        p.c != q.c
+            && (0..3).any(|ch| (p.c[ch].max(0.0).sqrt() - q.c[ch].max(0.0).sqrt()).abs() > 0.025)
     }
 }
 
