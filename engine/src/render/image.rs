@@ -107,9 +107,10 @@ impl Srgb8 {
     /// [`linear_to_srgb8`].
     #[inline]
     pub fn encode(self, v: f32) -> u8 {
-        // `as usize` saturates and maps NaN to 0.
-        let i = (v * (LUT_SIZE - 1) as f32 + 0.5) as usize;
-        self.0[i.min(LUT_SIZE - 1)]
+        // `as i32` saturates and maps NaN to 0 (cheaper than `as usize`, which has no SSE2
+        // instruction); the clamp keeps the index in the table.
+        let i = (v * (LUT_SIZE - 1) as f32 + 0.5) as i32;
+        self.0[i.clamp(0, LUT_SIZE as i32 - 1) as usize]
     }
 }
 

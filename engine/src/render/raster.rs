@@ -617,10 +617,6 @@ impl Rasterizer {
                     let base = [e.b[0] * sy, e.b[1] * sy, e.b[2] * sy];
                     let dy = db * sy as f64;
                     m.for_each(r, x0 as usize, x1 as usize, |x| {
-                        // Early depth test: every sample of the pixel holds a nearer surface.
-                        if (0..ns).all(|s| (key[(s * rows + r) * w + x] >> 32) as u32 > near_bits) {
-                            return;
-                        }
                         let sx = x as i64 * 256;
                         let dx = da * sx as f64 + dy;
                         for (s, d) in delta.iter().enumerate() {

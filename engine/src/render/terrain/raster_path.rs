@@ -128,6 +128,9 @@ pub(super) fn render_raster(
             (base.eye[2] + accel.half_z) / s.dy,
         ],
         sun32: base.sun.map(|c| c as f32),
+        sky: (0..out_h)
+            .map(|r| base.sky(((f64::from(r) + 0.5) * (1.0 / f64::from(out_h.max(1)))) as f32))
+            .collect(),
     };
     let bands = rast.bands().max(1);
     let done = AtomicUsize::new(0);
@@ -152,21 +155,23 @@ struct RasterShader<'s, 'a> {
     /// The eye in grid units (column, row).
     origin: [f64; 2],
     sun32: [f32; 3],
+    /// The sky colour of each image row.
+    sky: Vec<[f32; 3]>,
 }
 
 impl RasterShader<'_, '_> {
     #[inline]
     fn shade(&self, id: Option<u32>, x: f64, y: f64, row: usize) -> Px {
         let b = self.base;
-        let y_frac = ((row as f64 + 0.5) * self.inv_h) as f32;
         let Some(id) = id else {
             if !b.holes {
                 return Px::background(Sample {
-                    c: b.sky(y_frac),
+                    c: self.sky[row],
                     a: 1.0,
                     t: f32::INFINITY,
                 });
             }
+            let y_frac = ((row as f64 + 0.5) * self.inv_h) as f32;
             return Px::background(b.miss(self.gen.dir(x, y), y_frac));
         };
         let hit = self.locate(id, x, y);
