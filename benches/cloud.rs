@@ -19,7 +19,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use phenomena_engine::cloud::edit::{sun_color, sun_direction, Edit};
+use phenomena_engine::cloud::edit::{recolor, sun_color, sun_direction, Edit};
+use phenomena_engine::cloud::layers::{identity, Layers};
 use phenomena_engine::cloud::light::SunLight;
 use phenomena_engine::cloud::march::{render_layers, Prepared};
 use phenomena_engine::cloud::multigrid::{llw_weights, propagate, SolveOptions};
@@ -49,9 +50,10 @@ fn view(w: u32, h: u32) -> View {
     e.view().clone()
 }
 
+/// What the `cloud` pipeline does before encoding: the fused transmittance sweep and
+/// preparation ([`Prepared::lit`]), then one march per pixel.
 fn render_full(v: &Volume, s: &CloudState, view: &View) -> f32 {
-    let light = SunLight::compute(v, s.sun_direction, s.kappa, &NoControl).unwrap();
-    let prep = Prepared::new(v, &light, s, None);
+    let prep = Prepared::lit(v, s, None, &NoControl).unwrap();
     let cam = view.camera(v.bounds);
     let l = render_layers(&prep, &cam, view.width, view.height, &NoControl).unwrap();
     l.alpha[l.alpha.len() / 2]
@@ -66,7 +68,16 @@ fn bench_render(c: &mut Criterion) {
     g.bench_function("light_sweep_256", |b| {
         b.iter(|| SunLight::compute(&cu, s.sun_direction, s.kappa, &NoControl).unwrap())
     });
+    g.bench_function("prepare_lit_256", |b| {
+        b.iter(|| Prepared::lit(&cu, &s, None, &NoControl).unwrap())
+    });
     let v1024 = view(1024, 1024);
+    let prep = Prepared::lit(&cu, &s, None, &NoControl).unwrap();
+    let cam = v1024.camera(cu.bounds);
+    g.bench_function("march_256_1024", |b| {
+        b.iter(|| render_layers(&prep, &cam, 1024, 1024, &NoControl).unwrap())
+    });
+    drop(prep);
     g.bench_function("render_256_1024", |b| {
         b.iter(|| render_full(&cu, &s, &v1024))
     });
@@ -82,10 +93,9 @@ fn bench_edits(c: &mut Criterion) {
     let s = CloudState::default();
     let cu = cumulus(256);
     let view = view(1024, 1024);
-    // The sun-colour edit with the render at that camera existing: the light grid and the
-    // prepared sources are reused; only the ~2,000 painted rays are marched.
-    let light = SunLight::compute(&cu, s.sun_direction, s.kappa, &NoControl).unwrap();
-    let prep = Prepared::new(&cu, &light, &s, None);
+    // The sun-colour edit marching its ~2,000 painted rays, with the prepared sources reused
+    // (what it costs without the render's layers, less the preparation).
+    let prep = Prepared::lit(&cu, &s, None, &NoControl).unwrap();
     let px: Vec<[u32; 2]> = (0..2000u32)
         .map(|i| [384 + (i % 200), 500 + (i / 200) * 4])
         .collect();
@@ -99,6 +109,23 @@ fn bench_edits(c: &mut Criterion) {
         b.iter(|| {
             let samples = sun_color::painted_samples(&prep, &cu, se);
             sun_color::solve(&samples, None)
+        })
+    });
+    // With the render at that camera existing: its layers.bin, as the job receives it.
+    let cam = se.view.camera(cu.bounds);
+    let layers = render_layers(&prep, &cam, 1024, 1024, &NoControl).unwrap();
+    let blob = layers.to_bytes(&identity(&se.view, &s));
+    drop(prep);
+    // The edit proper: the painted pixels' Ī and A from the layers, least squares.
+    g.bench_function("sun_color_edit_cached_2000px_1024", |b| {
+        b.iter(|| sun_color::estimate_from_layers(&layers, &s, se).unwrap())
+    });
+    // The whole job after reading its inputs: parse layers.bin, solve, and the new version's
+    // outputs (render.png recoloured from the layers and PNG-encoded, state.json, layers.bin).
+    g.bench_function("sun_color_job_cached_1024", |b| {
+        b.iter(|| {
+            let (_, l) = Layers::from_bytes(&blob, u64::MAX).unwrap();
+            recolor(&s, se, &l, &blob, &NoControl).unwrap()
         })
     });
     wire = json!({"width": 1024, "height": 1024, "from": [512, 520], "to": [600, 560]});
@@ -125,6 +152,20 @@ fn ambient_problem(n: usize) -> (Volume, Vec<f32>, Pins) {
     (v, light.transmittance, pins)
 }
 
+/// The flat indices of the 6 neighbours of `(x, y, z)` (−x, +x, −y, +y, −z, +z; None outside).
+fn neighbours(dims: [usize; 3], x: usize, y: usize, z: usize) -> [Option<usize>; 6] {
+    let [nx, ny, nz] = dims;
+    let i = x + nx * (y + ny * z);
+    [
+        (x > 0).then(|| i - 1),
+        (x + 1 < nx).then(|| i + 1),
+        (y > 0).then(|| i - nx),
+        (y + 1 < ny).then(|| i + nx),
+        (z > 0).then(|| i - nx * ny),
+        (z + 1 < nz).then(|| i + nx * ny),
+    ]
+}
+
 /// Baseline: CSR matrix of the same system (free voxels only) and Jacobi-preconditioned CG per
 /// channel to the same relative residual. Returns the iterations of the slowest channel.
 fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64) -> usize {
@@ -145,7 +186,7 @@ fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64)
     let mut diag = vec![0f64; free.len()];
     for (k, &i) in free.iter().enumerate() {
         let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
-        let nb = phenomena_engine::cloud::multigrid::neighbours(dims, x, y, z);
+        let nb = neighbours(dims, x, y, z);
         let mut d = 0.0;
         let mut row: Vec<(usize, f64)> = vec![];
         for (e, j) in nb.iter().enumerate() {

@@ -5,8 +5,13 @@
 //!   timed loop, and timed on its own as `dust/noise_1024`.
 //! - `dust/exposure_100k_64`: the dust amount D with the exposure term, 64 rays per vertex, on
 //!   ≥ 100,000 vertices (issue 6 target ≤ 1 s): copies of the Stanford armadillo
-//!   (`../shared/data/mesh/armadillo.stl`) side by side on a grid until the vertex count reaches
-//!   100,000 (the copies shade each other as well as themselves). Includes the BVH build.
+//!   (`../shared/data/mesh/armadillo.stl`, Y-up) side by side on a grid until the vertex count
+//!   reaches 100,000 (the copies shade each other as well as themselves). Includes the BVH build.
+//! - `dust/render_100k_32_1080p`: the render of ≥ 100,000 triangles (two armadillos) with 32
+//!   shells at 1920×1080 (issue 6 target ≤ 1.5 s), default view and textures (512²): the base
+//!   setup (merge, shadow map, rasteriser), the shell overlay and the anti-aliased base render
+//!   with the overlay — what `run` times as `shells` + `render`. D, the textures and the crease
+//!   split are built outside the timed loop.
 //!
 //! Run: `cargo bench --bench dust`.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
@@ -16,18 +21,34 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use phenomena_engine::dust::amount::{dust_amount, AmountModel};
-use phenomena_engine::dust::fibers::{fiber_texture, FiberParams};
+use phenomena_engine::dust::fibers::{fiber_texture, shell_fiber_count, FiberParams};
+use phenomena_engine::dust::mapping::Mapping;
 use phenomena_engine::dust::noise::TileableNoise;
-use phenomena_engine::formats::mesh::{decode_mesh, MeshOptions};
-use phenomena_engine::geom::mesh::Mesh;
+use phenomena_engine::dust::render::{shell_overlay, Shells};
+use phenomena_engine::dust::surface::{crease_split, refine};
+use phenomena_engine::dust::texture::ShellTexture;
+use phenomena_engine::dust::Params;
+use phenomena_engine::formats::mesh::{decode_mesh, MeshOptions, UpAxis};
+use phenomena_engine::geom::mesh::{Mesh, MeshPart};
+use phenomena_engine::pipeline::Limits;
+use phenomena_engine::render::mesh::{MeshColors, MeshInstance, MeshRenderer};
+use phenomena_engine::NoControl;
 
-fn armadillo_grid(min_vertices: usize) -> Mesh {
+/// Copies of the armadillo until there are at least `min_vertices` vertices and
+/// `min_triangles` triangles.
+fn armadillo_grid(min_vertices: usize, min_triangles: usize) -> Mesh {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mesh/armadillo.stl");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let one = decode_mesh(&bytes, Some("armadillo.stl"), &MeshOptions::default()).unwrap();
+    let opts = MeshOptions {
+        up_axis: Some(UpAxis::Y),
+        ..MeshOptions::default()
+    };
+    let one = decode_mesh(&bytes, Some("armadillo.stl"), &opts).unwrap();
     let (lo, hi) = one.bounds().unwrap();
     let step = [(hi[0] - lo[0]) * 1.1, (hi[2] - lo[2]) * 1.1];
-    let copies = min_vertices.div_ceil(one.positions.len());
+    let copies = min_vertices
+        .div_ceil(one.positions.len())
+        .max(min_triangles.div_ceil(one.triangles.len()));
     let side = (copies as f64).sqrt().ceil() as usize;
     let mut m = Mesh::default();
     for c in 0..copies {
@@ -44,6 +65,12 @@ fn armadillo_grid(min_vertices: usize) -> Mesh {
                 .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
         );
     }
+    m.parts = vec![MeshPart {
+        name: "armadillos".into(),
+        first_triangle: 0,
+        triangle_count: m.triangles.len(),
+        base_color: [0.5, 0.5, 0.5, 1.0],
+    }];
     m
 }
 
@@ -59,7 +86,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| fiber_texture(&params, &field, 1024, 1024, 1, 0, 20_000))
     });
 
-    let mesh = armadillo_grid(100_000);
+    let mesh = armadillo_grid(100_000, 0);
     eprintln!(
         "exposure mesh: {} vertices, {} triangles",
         mesh.positions.len(),
@@ -68,6 +95,68 @@ fn bench(c: &mut Criterion) {
     let model = AmountModel::default();
     g.bench_function("exposure_100k_64", |b| {
         b.iter(|| dust_amount(&mesh, &model))
+    });
+
+    // The render: ≥ 100,000 triangles, 32 shells, 1920×1080, the pipeline's defaults.
+    let mesh = armadillo_grid(0, 100_000);
+    let p = Params::from_json(
+        &serde_json::json!({"width": 1920, "height": 1080, "shells": 32}),
+        &Limits::default(),
+    )
+    .unwrap();
+    let (mut m, mut normals) = crease_split(&mesh, p.dust_source);
+    refine(&mut m, &mut normals);
+    let amount = dust_amount(&m, &p.amount_model());
+    let side = p.texture_size;
+    let noise = TileableNoise::new(p.seed, p.noise_scale, p.noise_octaves).texture(side, side);
+    let textures: Vec<ShellTexture> = (0..p.shells)
+        .map(|k| {
+            let n = shell_fiber_count(p.fibers, k, p.shells);
+            ShellTexture::new(&fiber_texture(
+                &p.fiber_params(),
+                &noise,
+                side,
+                side,
+                p.seed,
+                k,
+                n,
+            ))
+        })
+        .collect();
+    let (lo, hi) = m.bounds().unwrap();
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+    let tile = diag / 8.0;
+    let mapping = Mapping::new(&m, tile);
+    let sh = Shells {
+        mesh: &m,
+        normals: &normals,
+        amount: &amount,
+        thickness: 0.01 * diag,
+        shells: p.shells,
+        mapping: &mapping,
+        texels_per_metre: side as f32 / tile,
+        textures: &textures,
+        noise: &noise,
+        noise_side: side as usize,
+        dust_color: p.dust_color_linear(),
+    };
+    let light = p.view.lighting(&m);
+    let cam = p.view.camera_for(&m, 1920, 1080);
+    eprintln!("render mesh: {} triangles", m.triangles.len());
+    g.bench_function("render_100k_32_1080p", |b| {
+        b.iter(|| {
+            let base = MeshInstance {
+                positions: &m.positions,
+                normals: Some(&normals),
+                triangles: &m.triangles,
+                colors: MeshColors::PerPart(&m.parts),
+            };
+            let view =
+                MeshRenderer::new(&[base], &cam, &light, 1920, 1080, sh.bounds(), &NoControl)
+                    .unwrap();
+            let overlay = shell_overlay(&view, &cam, &sh, &NoControl, (0.0, 1.0)).unwrap();
+            view.render(Some(&overlay), &NoControl, (0.0, 1.0)).unwrap()
+        })
     });
     g.finish();
 }

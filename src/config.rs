@@ -99,6 +99,11 @@ pub struct ServeArgs {
     /// Default none: CORS off (the page at `/` is same-origin and needs none).
     #[arg(long, env = "PHENOMENA_CORS_ORIGINS", value_delimiter = ',')]
     pub cors_origins: Option<Vec<String>>,
+    /// Object store for blobs and asset records: `file:///path` (a directory, possibly shared by
+    /// replicas) or `s3://bucket/prefix` (S3-compatible; credentials, region and endpoint from
+    /// the `AWS_*` environment variables). Default: the data directory.
+    #[arg(long, env = "PHENOMENA_STORE_URL")]
+    pub store_url: Option<String>,
     /// Redis URL (`redis://host:6379/0`): share the queue, job state and progress with other
     /// replicas. Default: none (the embedded job system).
     #[arg(long, env = "PHENOMENA_REDIS_URL")]
@@ -145,6 +150,7 @@ pub struct Config {
     /// Logged without its password (see [`redact_url`]).
     #[serde(serialize_with = "redacted")]
     pub redis_url: Option<String>,
+    pub store_url: Option<String>,
     pub redis_prefix: String,
     pub redis_lease_secs: u64,
     pub role: Role,
@@ -229,6 +235,7 @@ impl Default for Config {
             auth_tokens: Vec::new(),
             cors_origins: Vec::new(),
             redis_url: None,
+            store_url: None,
             redis_prefix: "phenomena".into(),
             redis_lease_secs: 30,
             role: Role::Both,
@@ -290,6 +297,7 @@ impl Config {
                 .or(file.cors_origins.clone())
                 .unwrap_or_default(),
             redis_url: args.redis_url.clone().or(file.redis_url.clone()),
+            store_url: args.store_url.clone().or(file.store_url.clone()),
             redis_prefix: args
                 .redis_prefix
                 .clone()

@@ -147,8 +147,18 @@ impl From<ParamError> for ApiError {
 
 impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
-        tracing::error!(error = %e, "store failure");
-        ApiError::Unavailable("storage is unavailable; try again later".into())
+        match e {
+            crate::store::StoreError::TooLarge { .. } => {
+                ApiError::PayloadTooLarge("request body too large".into())
+            }
+            crate::store::StoreError::Upload(detail) => {
+                ApiError::bad_request(format!("the upload failed: {detail}"))
+            }
+            e => {
+                tracing::error!(error = %e, "store failure");
+                ApiError::Unavailable("storage is unavailable; try again later".into())
+            }
+        }
     }
 }
 

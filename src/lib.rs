@@ -65,7 +65,8 @@ pub async fn state_with(
             hex::encode(rand::random::<[u8; 2]>())
         );
     }
-    let store = Store::open(&cfg.data_dir)?;
+    let store = Store::open_with(&cfg.data_dir, cfg.store_url.as_deref())?;
+    tracing::info!(blobs = %store.blob_url(), "blob store");
     let metrics = Metrics::new()?;
     let jcfg = cfg.jobs();
     let (backend, clouds): (Arc<dyn JobBackend>, Scenes) = match &cfg.redis_url {
@@ -127,7 +128,7 @@ pub async fn state_with(
     // Fill the store-size gauge once at start; the sweeper refreshes it.
     metrics
         .store_bytes
-        .set(i64::try_from(jobs.store().blob_bytes()).unwrap_or(i64::MAX));
+        .set(i64::try_from(jobs.store().blob_bytes().await).unwrap_or(i64::MAX));
     Ok(AppState {
         cfg: Arc::new(cfg),
         jobs,

@@ -26,11 +26,17 @@ const PIPELINES = {
     example: "volume.npy",
     images: ["render.png", "direct.png", "ambient.png"],
   },
+  dust: {
+    schema: "DustParams",
+    input: "mesh (glTF/GLB, OBJ, STL, PLY)",
+    example: "mesh.obj",
+    images: ["render.png", "dust_amount.png", "fibers.png"],
+  },
 };
 
 /** Fields the form leaves out: the camera is driven by dragging the preview; the rest are
  * structured values (lists, schedules, boxes) better sent through the API directly. */
-const SKIP = new Set(["camera", "sweep", "layers", "bounds", "dims", "snowfall", "wind", "sun_direction", "sun_color", "ambient"]);
+const SKIP = new Set(["camera", "sweep", "layers", "bounds", "dims", "snowfall", "wind", "sun_direction", "sun_color", "ambient", "dust_source"]);
 
 /** The longest side of a quick preview, pixels. */
 const PREVIEW_MAX = 480;

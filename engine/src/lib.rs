@@ -10,6 +10,7 @@ pub mod dust;
 pub mod error;
 pub mod formats;
 pub mod geom;
+pub mod mesh_view;
 pub mod output;
 pub mod params;
 pub mod pipeline;

@@ -5,7 +5,7 @@ use crate::cloud::{self, AmbientField};
 use crate::formats::dem::{decode_dem, DemOptions};
 use crate::formats::volume::{decode_volume, VolumeOptions};
 use crate::geom::{Dem, Mesh, Volume};
-use crate::{snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError};
+use crate::{dust, snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError};
 
 /// Input and output size limits (configured by the server; the CLI uses the defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,6 +42,8 @@ pub enum PipelineKind {
     /// One edit of a cloud scene version (SPEC §3.1–3.3). Internal: the cloud scene resource
     /// submits it; it has no `POST /v1/{pipeline}` route of its own.
     CloudEdit,
+    /// Dust with fibre shells (SPEC §4).
+    Dust,
 }
 
 impl PipelineKind {
@@ -51,6 +53,7 @@ impl PipelineKind {
         PipelineKind::SnowCover,
         PipelineKind::Cloud,
         PipelineKind::CloudEdit,
+        PipelineKind::Dust,
     ];
 
     /// The pipelines with a public `POST /v1/{name}` route.
@@ -68,6 +71,7 @@ impl PipelineKind {
             PipelineKind::SnowCover => "snow-cover",
             PipelineKind::Cloud => "cloud",
             PipelineKind::CloudEdit => "cloud-edit",
+            PipelineKind::Dust => "dust",
         }
     }
 
@@ -79,7 +83,7 @@ impl PipelineKind {
     pub fn input_part(self) -> &'static str {
         match self {
             PipelineKind::SnowTerrain => "dem",
-            PipelineKind::SnowCover => "mesh",
+            PipelineKind::SnowCover | PipelineKind::Dust => "mesh",
             PipelineKind::Cloud | PipelineKind::CloudEdit => "volume",
         }
     }
@@ -177,6 +181,7 @@ pub enum Params {
     SnowCover(Box<snow_cover::Params>),
     Cloud(Box<cloud::Params>),
     CloudEdit(Box<CloudEditParams>),
+    Dust(Box<dust::Params>),
 }
 
 impl Params {
@@ -199,6 +204,7 @@ impl Params {
             PipelineKind::CloudEdit => Ok(Params::CloudEdit(Box::new(CloudEditParams::from_json(
                 v, limits,
             )?))),
+            PipelineKind::Dust => Ok(Params::Dust(Box::new(dust::Params::from_json(v, limits)?))),
         }
     }
 
@@ -210,6 +216,7 @@ impl Params {
             Params::SnowCover(p) => serde_json::to_value(p),
             Params::Cloud(p) => serde_json::to_value(p),
             Params::CloudEdit(p) => Ok(p.canonical()),
+            Params::Dust(p) => serde_json::to_value(p),
         };
         // Serialising plain structs of numbers, strings and options cannot fail.
         v.unwrap_or(serde_json::Value::Null)
@@ -237,6 +244,18 @@ pub enum Job {
         volume: Volume,
         ambient: Option<AmbientField>,
     },
+    /// A sun-colour edit answered from the layers of the base version's render at the edit's
+    /// view ([`cloud::edit::recolor`]): the volume is not decoded.
+    CloudRecolor {
+        params: Box<CloudEditParams>,
+        layers: Box<cloud::layers::Layers>,
+        /// The `layers.bin` blob they were read from (the new version's `layers.bin`).
+        blob: Vec<u8>,
+    },
+    Dust {
+        params: Box<dust::Params>,
+        mesh: Mesh,
+    },
 }
 
 /// Why a run produced no outputs.
@@ -258,6 +277,11 @@ impl From<Canceled> for RunFailure {
 
 /// The name of the auxiliary input holding a cloud scene version's ambient field.
 pub const AMBIENT_FIELD: &str = "ambient.bin";
+
+/// The name of a cloud edit's optional auxiliary input holding the layers of the base
+/// version's render at the edit's view (`layers.bin` of that render): a sun-colour edit then
+/// reads them instead of decoding the volume and marching.
+pub const LAYERS: &str = cloud::layers::LAYERS_FILE;
 
 fn volume_options(
     bounds: Option<[[f64; 3]; 2]>,
@@ -342,6 +366,20 @@ pub fn decode_with_aux(
             })
         }
         Params::CloudEdit(p) => {
+            if let cloud::Edit::SunColor(e) = &p.edit {
+                if let Some((_, blob)) = aux.iter().find(|(name, _)| name == LAYERS) {
+                    let (id, layers) =
+                        cloud::layers::Layers::from_bytes(blob, limits.max_output_pixels)?;
+                    // Layers of another view or state are not these: march instead.
+                    if id == cloud::layers::identity(&e.view, &p.base) {
+                        return Ok(Job::CloudRecolor {
+                            params: p,
+                            layers: Box::new(layers),
+                            blob: blob.clone(),
+                        });
+                    }
+                }
+            }
             let volume = cloud_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))?;
             let ambient = ambient_field(aux, &volume)?;
             Ok(Job::CloudEdit {
@@ -349,6 +387,10 @@ pub fn decode_with_aux(
                 volume,
                 ambient,
             })
+        }
+        Params::Dust(p) => {
+            let mesh = dust::run::decode(bytes, filename, &p, limits)?;
+            Ok(Job::Dust { params: p, mesh })
         }
     }
 }
@@ -370,11 +412,20 @@ pub fn describe(job: &Job) -> serde_json::Value {
     }
 }
 
+/// A cloud edit that could not be done is the user's to fix (422), unless it was canceled.
+fn edit_failure(e: cloud::EditError) -> RunFailure {
+    match e {
+        cloud::EditError::Canceled => RunFailure::Canceled,
+        other => RunFailure::Unprocessable(other.to_string()),
+    }
+}
+
 /// Runs the pipeline to its named outputs.
 pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
     match job {
         Job::SnowTerrain { params, dem } => Ok(snow_terrain::run(dem, params, ctl)?),
         Job::SnowCover { params, mesh } => Ok(snow_cover::run(mesh, params, ctl)?),
+        Job::Dust { params, mesh } => Ok(dust::run(mesh, params, ctl)?),
         Job::Cloud {
             params,
             volume,
@@ -387,10 +438,7 @@ pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
         } => {
             let outcome =
                 cloud::apply_edit(volume, &params.base, ambient.as_ref(), &params.edit, ctl)
-                    .map_err(|e| match e {
-                        cloud::EditError::Canceled => RunFailure::Canceled,
-                        other => RunFailure::Unprocessable(other.to_string()),
-                    })?;
+                    .map_err(edit_failure)?;
             Ok(cloud::edit_outputs_with(
                 volume,
                 &outcome,
@@ -398,6 +446,18 @@ pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
                 &params.edit,
                 ctl,
             )?)
+        }
+        Job::CloudRecolor {
+            params,
+            layers,
+            blob,
+        } => {
+            let cloud::Edit::SunColor(e) = &params.edit else {
+                return Err(RunFailure::Unprocessable(
+                    "only a sun-colour edit reads render layers".into(),
+                ));
+            };
+            cloud::edit::recolor(&params.base, e, layers, blob, ctl).map_err(edit_failure)
         }
     }
 }

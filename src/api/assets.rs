@@ -4,13 +4,14 @@ use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
+use futures_util::StreamExt;
 use serde::Deserialize;
 
 use super::submit::sanitize_filename;
 use super::AppState;
 use crate::error::ApiError;
 use crate::store::assets::AssetRecord;
-use crate::store::is_sha256_hex;
+use crate::store::{is_sha256_hex, StoreError};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -44,7 +45,10 @@ pub async fn upload(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.to_ascii_lowercase().starts_with("multipart/form-data"));
-    let (bytes, filename) = if is_multipart {
+    let max = st.cfg.max_body_bytes as u64;
+    let store = st.jobs.store().clone();
+    // The bytes stream to the blob store as they arrive (hashed on the way), never held whole.
+    let (sha, size, filename) = if is_multipart {
         let mut mp = Multipart::from_request(req, &st)
             .await
             .map_err(|e| ApiError::bad_request(e.body_text()))?;
@@ -63,30 +67,35 @@ pub async fn upload(
                 ));
             }
             let name = field.file_name().map(sanitize_filename);
-            let b = field.bytes().await.map_err(|e| {
-                if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                    ApiError::PayloadTooLarge("request body too large".into())
-                } else {
-                    ApiError::bad_request(e.body_text())
-                }
-            })?;
-            found = Some((b, name.or(q.filename.as_deref().map(sanitize_filename))));
+            let chunks = field.map(|r| {
+                r.map_err(|e| {
+                    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                        StoreError::TooLarge { max }
+                    } else {
+                        StoreError::Upload(e.body_text())
+                    }
+                })
+            });
+            let (sha, size) = store.put_blob_stream(chunks, max).await?;
+            found = Some((
+                sha,
+                size,
+                name.or(q.filename.as_deref().map(sanitize_filename)),
+            ));
         }
         found.ok_or_else(|| ApiError::bad_field("file", "missing the `file` part"))?
     } else {
-        let b = axum::body::to_bytes(req.into_body(), st.cfg.max_body_bytes)
-            .await
-            .map_err(|_| ApiError::PayloadTooLarge("request body too large".into()))?;
-        (b, q.filename.as_deref().map(sanitize_filename))
+        let chunks = req
+            .into_body()
+            .into_data_stream()
+            .map(|r| r.map_err(|e| StoreError::Upload(e.to_string())));
+        let (sha, size) = store.put_blob_stream(chunks, max).await?;
+        (sha, size, q.filename.as_deref().map(sanitize_filename))
     };
-    if bytes.is_empty() {
+    if size == 0 {
         return Err(ApiError::bad_request("the upload is empty"));
     }
-    let store = st.jobs.store().clone();
-    let (rec, created) =
-        tokio::task::spawn_blocking(move || store.put_asset(&bytes, filename.as_deref()))
-            .await
-            .map_err(ApiError::internal)??;
+    let (rec, created) = store.record_asset(&sha, size, filename.as_deref()).await?;
     let status = if created {
         StatusCode::CREATED
     } else {
@@ -132,10 +141,7 @@ pub async fn get(
     if !is_sha256_hex(&id) {
         return Err(ApiError::NotFound(format!("no asset {id}")));
     }
-    let store = st.jobs.store().clone();
-    let rec = tokio::task::spawn_blocking(move || store.get_asset(&id))
-        .await
-        .map_err(ApiError::internal)?;
+    let rec = st.jobs.store().get_asset(&id).await;
     rec.map(|r| Json(AssetView::from(r)))
         .ok_or_else(|| ApiError::NotFound("no such asset".into()))
 }

@@ -34,6 +34,10 @@ const VIEW_KEYS: &[&str] = &["width", "height", "camera", "layers", "seed"];
 const INPUT_KEYS: &[&str] = &["bounds", "dims"];
 /// The edit modes (SPEC §3.1–3.3), as they appear in the route.
 const EDIT_KINDS: &[&str] = &["sun-color", "ambient", "sun-direction"];
+/// The render layer a scene render always adds, and its output: the linear layers a later
+/// sun-colour edit at that view reads (`phenomena_engine::cloud::layers`).
+const LINEAR: &str = "linear";
+const LAYERS_BIN: &str = phenomena_engine::pipeline::LAYERS;
 /// How long an edit on a still-pending base version waits for it before answering 409.
 const BASE_WAIT: Duration = Duration::from_secs(30);
 
@@ -334,9 +338,7 @@ pub async fn render(
         .into());
     }
     let (scene, v) = ready_version(&st, &id, n, "version").await?;
-    let mut params = state_of(&v);
-    params.extend(scene.input.clone());
-    params.extend(body);
+    let params = render_params(&scene, &v, body);
     let params = st.jobs.pipelines().params(RENDER, &Value::Object(params))?;
     let (input, key_input) = version_input(&scene, &v);
     let key = request_key(RENDER, &key_input, &params);
@@ -345,6 +347,116 @@ pub async fn render(
         None => queue_job(&st, RENDER, input, params, key).await?,
     };
     respond(&st, rec, wait).await
+}
+
+/// The parameters of a render of version `v` with the view in `body`: the version's state, the
+/// scene's decoder options, the view, and the `linear` layer (`layers.bin`) added to the
+/// requested layers so that a later sun-colour edit at this view can read it.
+fn render_params(
+    scene: &SceneRecord,
+    v: &VersionRecord,
+    body: Map<String, Value>,
+) -> Map<String, Value> {
+    let mut params = state_of(v);
+    params.extend(scene.input.clone());
+    params.extend(body);
+    let layers = match params.remove("layers") {
+        None | Some(Value::Bool(false)) => Value::Array(vec![]),
+        Some(Value::Bool(true)) => serde_json::json!(["direct", "ambient"]),
+        Some(other) => other,
+    };
+    let layers = match layers {
+        Value::Array(mut l) => {
+            if !l.iter().any(|x| x == LINEAR) {
+                l.push(Value::String(LINEAR.into()));
+            }
+            Value::Array(l)
+        }
+        // Not a list: left for the pipeline to refuse.
+        other => other,
+    };
+    params.insert("layers".into(), layers);
+    params
+}
+
+/// The view keys of an edit or render body, as sent.
+fn view_of(body: &Map<String, Value>) -> Vec<Option<&Value>> {
+    ["width", "height", "camera"]
+        .iter()
+        .map(|k| body.get(*k))
+        .collect()
+}
+
+/// The `layers.bin` blob of a finished render of version `v` at the view of the edit `body`,
+/// if one exists: the render made by the edit that produced `v` when it was made at the same
+/// view (as sent), else a scene render of `v` at that view (found by its request key, for each
+/// set of image layers it may have asked for). The engine checks the blob's identity against the
+/// edit and marches instead when it differs, so a wrong guess costs time, never correctness.
+async fn layers_of(
+    st: &AppState,
+    scene: &SceneRecord,
+    v: &VersionRecord,
+    body: &Map<String, Value>,
+) -> Option<String> {
+    let blob_of = |job: &crate::jobs::JobRecord| {
+        (job.status == crate::jobs::Status::Succeeded)
+            .then(|| job.outputs.iter().find(|o| o.name == LAYERS_BIN))
+            .flatten()
+            .map(|o| o.sha256.clone())
+    };
+    let same_view = v
+        .edit
+        .as_ref()
+        .and_then(Value::as_object)
+        .is_some_and(|e| view_of(e) == view_of(body));
+    if same_view {
+        if let Some(j) = &v.job {
+            if let Some(b) = st
+                .jobs
+                .get(j)
+                .await
+                .ok()
+                .flatten()
+                .and_then(|j| blob_of(&j))
+            {
+                return Some(b);
+            }
+        }
+    }
+    let (_, key_input) = version_input(scene, v);
+    let view: Map<String, Value> = body
+        .iter()
+        .filter(|(k, _)| ["width", "height", "camera"].contains(&k.as_str()))
+        .map(|(k, x)| (k.clone(), x.clone()))
+        .collect();
+    for layers in [
+        Value::Bool(false),
+        serde_json::json!(["direct"]),
+        serde_json::json!(["ambient"]),
+        Value::Bool(true),
+    ] {
+        let mut b = view.clone();
+        b.insert("layers".into(), layers);
+        let Ok(params) = st
+            .jobs
+            .pipelines()
+            .params(RENDER, &Value::Object(render_params(scene, v, b)))
+        else {
+            continue;
+        };
+        let key = request_key(RENDER, &key_input, &params);
+        if let Some(b) = st
+            .jobs
+            .find_by_key(&key)
+            .await
+            .ok()
+            .flatten()
+            .and_then(|j| blob_of(&j))
+        {
+            return Some(b);
+        }
+    }
+    None
 }
 
 fn state_of(v: &VersionRecord) -> Map<String, Value> {
@@ -399,7 +511,16 @@ pub async fn edit(
         .pipelines()
         .params(EDIT, &Value::Object(params))
         .map_err(edit_field)?;
-    let (input, key_input) = version_input(&scene, &base);
+    let (mut input, key_input) = version_input(&scene, &base);
+    // (Not in the key: the blob only saves time, the version is the same with or without it.)
+    if kind == "sun-color" {
+        if let Some(blob) = layers_of(&st, &scene, &base, &body).await {
+            input.aux.push(AuxInput {
+                name: LAYERS_BIN.into(),
+                blob,
+            });
+        }
+    }
     let key = request_key(EDIT, &key_input, &params);
     let job = match st.jobs.find_by_key(&key).await? {
         Some(rec) => rec,

@@ -207,11 +207,15 @@ pub async fn output(
             .body(Body::empty())
             .map_err(ApiError::internal);
     }
-    let path = st.jobs.store().blob_path(&out.sha256);
-    let file = tokio::fs::File::open(&path).await.map_err(|e| {
-        tracing::error!(error = %e, path = %path.display(), "output blob missing");
-        ApiError::Unavailable("the output is not available from storage".into())
-    })?;
+    let stream = st
+        .jobs
+        .store()
+        .blob_stream(&out.sha256)
+        .await
+        .map_err(|e| {
+            tracing::error!(error = %e, blob = %out.sha256, "output blob missing");
+            ApiError::Unavailable("the output is not available from storage".into())
+        })?;
     builder = builder
         .status(StatusCode::OK)
         .header(header::CONTENT_TYPE, &out.media_type)
@@ -221,6 +225,6 @@ pub async fn output(
             format!("inline; filename=\"{}\"", out.name),
         );
     builder
-        .body(Body::from_stream(tokio_util::io::ReaderStream::new(file)))
+        .body(Body::from_stream(stream))
         .map_err(ApiError::internal)
 }

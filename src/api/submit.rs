@@ -185,30 +185,21 @@ pub(super) async fn store_input(
     st: &AppState,
     input: Input,
 ) -> Result<(crate::store::assets::AssetRecord, Option<bytes::Bytes>), ApiError> {
-    let store = st.jobs.store().clone();
+    let store = st.jobs.store();
     Ok(match input {
         Input::Upload { bytes, filename } => {
-            let b = bytes.clone();
-            let (rec, _) =
-                tokio::task::spawn_blocking(move || store.put_asset(&b, filename.as_deref()))
-                    .await
-                    .map_err(blocking_err)??;
+            let (rec, _) = store.put_asset(bytes.clone(), filename.as_deref()).await?;
             (rec, Some(bytes))
         }
-        Input::Named(id) => {
-            let found = tokio::task::spawn_blocking(move || store.get_asset(&id).ok_or(id))
-                .await
-                .map_err(blocking_err)?;
-            match found {
-                Ok(rec) => (rec, None),
-                Err(id) => {
-                    return Err(ApiError::InvalidInput {
-                        detail: format!("no asset {id:?}; upload it with POST /v1/assets"),
-                        field: Some("asset".into()),
-                    })
-                }
+        Input::Named(id) => match store.get_asset(&id).await {
+            Some(rec) => (rec, None),
+            None => {
+                return Err(ApiError::InvalidInput {
+                    detail: format!("no asset {id:?}; upload it with POST /v1/assets"),
+                    field: Some("asset".into()),
+                })
             }
-        }
+        },
     })
 }
 
@@ -220,15 +211,7 @@ pub(super) async fn input_bytes(
 ) -> Result<bytes::Bytes, ApiError> {
     Ok(match uploaded {
         Some(b) => b,
-        None => {
-            let store = st.jobs.store().clone();
-            let id = asset.id.clone();
-            bytes::Bytes::from(
-                tokio::task::spawn_blocking(move || store.read_blob(&id))
-                    .await
-                    .map_err(blocking_err)??,
-            )
-        }
+        None => st.jobs.store().read_blob(&asset.id).await?,
     })
 }
 
@@ -258,11 +241,7 @@ pub(super) async fn touch_asset(
     st: &AppState,
     asset: &crate::store::assets::AssetRecord,
 ) -> Result<(), ApiError> {
-    let store = st.jobs.store().clone();
-    let a = asset.clone();
-    tokio::task::spawn_blocking(move || store.touch_asset(&a))
-        .await
-        .map_err(blocking_err)??;
+    st.jobs.store().touch_asset(asset).await?;
     Ok(())
 }
 

@@ -22,13 +22,9 @@ pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value
     if st.shutdown.is_cancelled() || !st.jobs.accepting() {
         return Err(ApiError::Unavailable("the service is shutting down".into()));
     }
-    let store = st.jobs.store().clone();
-    let writable = tokio::task::spawn_blocking(move || store.probe())
-        .await
-        .unwrap_or(false);
-    if !writable {
+    if !st.jobs.store().probe().await {
         return Err(ApiError::Unavailable(
-            "the data directory is not writable".into(),
+            "the blob store is not writable".into(),
         ));
     }
     st.jobs.check().await?;

@@ -281,11 +281,7 @@ impl Scenes {
             Status::Succeeded => {
                 let state = match job.outputs.iter().find(|o| o.name == "state.json") {
                     Some(o) => {
-                        let store = self.store.clone();
-                        let sha = o.sha256.clone();
-                        let bytes = tokio::task::spawn_blocking(move || store.read_blob(&sha))
-                            .await
-                            .map_err(|e| SceneError::Backend(e.to_string()))??;
+                        let bytes = self.store.read_blob(&o.sha256).await?;
                         serde_json::from_slice::<serde_json::Value>(&bytes).ok()
                     }
                     None => None,

@@ -87,36 +87,23 @@ pub(crate) fn failure(kind: &str, title: &str, detail: impl Into<String>) -> Job
 pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
     let t0 = Instant::now();
     tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
-    let store = ex.store.clone();
-    let asset = rec.input.asset.clone();
-    let aux_refs = rec.input.aux.clone();
-    let read = move || -> Result<_, crate::store::StoreError> {
-        let input = store.read_blob(&asset)?;
-        let aux = aux_refs
-            .into_iter()
-            .map(|a| Ok((a.name, store.read_blob(&a.blob)?)))
-            .collect::<Result<Vec<_>, crate::store::StoreError>>()?;
-        Ok((input, aux))
+    let read = async {
+        let input = ex.store.read_blob(&rec.input.asset).await?;
+        let mut aux = Vec::with_capacity(rec.input.aux.len());
+        for a in &rec.input.aux {
+            aux.push((a.name.clone(), ex.store.read_blob(&a.blob).await?.to_vec()));
+        }
+        Ok::<_, crate::store::StoreError>((input, aux))
     };
-    let (input, aux) = match tokio::task::spawn_blocking(read).await {
-        Ok(Ok(bytes)) => bytes,
-        Ok(Err(e)) => {
+    let (input, aux) = match read.await {
+        Ok(bytes) => bytes,
+        Err(e) => {
             tracing::error!(job = %rec.id, error = %e, "input blob unreadable");
             rec.status = Status::Failed;
             rec.error = Some(failure(
                 "input-missing",
                 "Input unavailable",
                 "the job's input could not be read from the store",
-            ));
-            return rec;
-        }
-        Err(e) => {
-            tracing::error!(job = %rec.id, error = %e, "input read task failed");
-            rec.status = Status::Failed;
-            rec.error = Some(failure(
-                "internal",
-                "Internal error",
-                "the job could not be run",
             ));
             return rec;
         }
@@ -181,29 +168,28 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
 
     match result {
         Ok(Ok(Ok(outputs))) => {
-            let store = ex.store.clone();
-            let stored = tokio::task::spawn_blocking(move || {
-                outputs
-                    .into_iter()
-                    .map(|o| {
-                        let sha = store.put_blob(&o.bytes)?;
-                        Ok(OutputRecord {
-                            name: o.name,
-                            media_type: o.media_type.to_string(),
-                            size: o.bytes.len() as u64,
-                            sha256: sha,
-                        })
-                    })
-                    .collect::<Result<Vec<_>, crate::store::StoreError>>()
-            })
+            let stored = async {
+                let mut outs = Vec::with_capacity(outputs.len());
+                for o in outputs {
+                    let size = o.bytes.len() as u64;
+                    let sha = ex.store.put_blob(bytes::Bytes::from(o.bytes)).await?;
+                    outs.push(OutputRecord {
+                        name: o.name,
+                        media_type: o.media_type.to_string(),
+                        size,
+                        sha256: sha,
+                    });
+                }
+                Ok::<_, crate::store::StoreError>(outs)
+            }
             .await;
             match stored {
-                Ok(Ok(outs)) => {
+                Ok(outs) => {
                     rec.outputs = outs;
                     rec.status = Status::Succeeded;
                     tracing::info!(job = %rec.id, seconds = total, "job succeeded");
                 }
-                Ok(Err(e)) => {
+                Err(e) => {
                     tracing::error!(job = %rec.id, error = %e, "could not store outputs");
                     rec.status = Status::Failed;
                     rec.error = Some(failure(
@@ -211,11 +197,6 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                         "Storage unavailable",
                         "the outputs could not be stored",
                     ));
-                }
-                Err(e) => {
-                    tracing::error!(job = %rec.id, error = %e, "output store task failed");
-                    rec.status = Status::Failed;
-                    rec.error = Some(failure("internal", "Internal error", "the job failed"));
                 }
             }
         }

@@ -46,22 +46,14 @@ pub(crate) async fn sweep_once(
     let cutoff = chrono::Utc::now()
         - chrono::Duration::from_std(retention).unwrap_or(chrono::Duration::days(3650));
     let expired = jobs.expire(cutoff).await?;
-    let store = jobs.store().clone();
-    let assets = tokio::task::spawn_blocking(move || store.expire_assets(cutoff))
-        .await
-        .map_err(|e| JobsError::Backend(e.to_string()))??;
+    let assets = jobs.store().expire_assets(cutoff).await?;
     let mut keep = jobs.referenced_blobs().await?;
     keep.extend(assets);
     keep.extend(jobs.hooks().pinned_blobs().await?);
     // Blobs younger than this may belong to a job that is storing its outputs right now.
     let min_age = retention.min(Duration::from_secs(600));
-    let store = jobs.store().clone();
-    let (files, bytes, total) = tokio::task::spawn_blocking(move || {
-        let (files, bytes) = store.sweep_blobs(&keep, min_age)?;
-        Ok::<_, crate::store::StoreError>((files, bytes, store.blob_bytes()))
-    })
-    .await
-    .map_err(|e| JobsError::Backend(e.to_string()))??;
+    let (files, bytes) = jobs.store().sweep_blobs(&keep, min_age).await?;
+    let total = jobs.store().blob_bytes().await;
     metrics
         .store_bytes
         .set(i64::try_from(total).unwrap_or(i64::MAX));

@@ -20,24 +20,25 @@ pub struct AssetRecord {
     pub last_used_at: DateTime<Utc>,
 }
 
-impl Store {
-    fn asset_path(&self, id: &str) -> std::path::PathBuf {
-        self.root().join("assets").join(format!("{id}.json"))
-    }
+fn asset_key(id: &str) -> String {
+    format!("assets/{id}.json")
+}
 
-    /// Stores an asset. Returns the record and whether it was new. Uploading the same bytes again
-    /// refreshes `last_used_at` (and keeps the first file name).
-    pub fn put_asset(
+impl Store {
+    /// Records an asset whose blob is stored (`put_blob` / `put_blob_stream`). Returns the record
+    /// and whether it was new. Uploading the same bytes again refreshes `last_used_at` (and keeps
+    /// the first file name).
+    pub async fn record_asset(
         &self,
-        bytes: &[u8],
+        id: &str,
+        size: u64,
         filename: Option<&str>,
     ) -> Result<(AssetRecord, bool), StoreError> {
-        let id = self.put_blob(bytes)?;
         let now = Utc::now();
-        let (rec, created) = match self.get_asset(&id) {
+        let (rec, created) = match self.get_asset(id).await {
             Some(mut r) => {
                 // Re-uploads are frequent (every multipart submit of a cached request): rewrite
-                // the record at most once a minute, so the hot path does no synchronous write.
+                // the record at most once a minute, so the hot path does no write.
                 let fresh = now - r.last_used_at < chrono::Duration::seconds(60);
                 if fresh && (r.filename.is_some() || filename.is_none()) {
                     return Ok((r, false));
@@ -50,8 +51,8 @@ impl Store {
             }
             None => (
                 AssetRecord {
-                    id: id.clone(),
-                    size: bytes.len() as u64,
+                    id: id.to_string(),
+                    size,
                     filename: filename.map(str::to_string),
                     created_at: now,
                     last_used_at: now,
@@ -59,37 +60,52 @@ impl Store {
                 true,
             ),
         };
-        self.put_json(&self.asset_path(&id), &rec)?;
+        self.put_object_json(&asset_key(id), &rec).await?;
         Ok((rec, created))
     }
 
+    /// Stores an asset's bytes and record.
+    pub async fn put_asset(
+        &self,
+        bytes: bytes::Bytes,
+        filename: Option<&str>,
+    ) -> Result<(AssetRecord, bool), StoreError> {
+        let size = bytes.len() as u64;
+        let id = self.put_blob(bytes).await?;
+        self.record_asset(&id, size, filename).await
+    }
+
     /// The asset's record, if the id is well-formed and both record and blob exist.
-    pub fn get_asset(&self, id: &str) -> Option<AssetRecord> {
-        if !is_sha256_hex(id) || !self.has_blob(id) {
+    pub async fn get_asset(&self, id: &str) -> Option<AssetRecord> {
+        if !is_sha256_hex(id) || !self.has_blob(id).await {
             return None;
         }
-        self.get_json(&self.asset_path(id)).ok()
+        self.get_object_json(&asset_key(id)).await
     }
 
     /// Marks an asset as used now (skipped when it was marked less than a minute ago).
-    pub fn touch_asset(&self, rec: &AssetRecord) -> Result<(), StoreError> {
+    pub async fn touch_asset(&self, rec: &AssetRecord) -> Result<(), StoreError> {
         if Utc::now() - rec.last_used_at < chrono::Duration::seconds(60) {
             return Ok(());
         }
         let mut r = rec.clone();
         r.last_used_at = Utc::now();
-        self.put_json(&self.asset_path(&r.id), &r)
+        self.put_object_json(&asset_key(&r.id), &r).await
     }
 
     /// Deletes asset records unused since `older_than`; returns the ids still alive.
-    pub fn expire_assets(
+    pub async fn expire_assets(
         &self,
         older_than: DateTime<Utc>,
     ) -> Result<std::collections::HashSet<String>, StoreError> {
         let mut alive = std::collections::HashSet::new();
-        for rec in self.list_json::<AssetRecord>("assets")? {
+        for (key, bytes) in self.list_objects("assets").await? {
+            let Ok(rec) = serde_json::from_slice::<AssetRecord>(&bytes) else {
+                tracing::warn!(key = %key, "skipping an unreadable asset record");
+                continue;
+            };
             if rec.last_used_at < older_than {
-                self.remove(&self.asset_path(&rec.id))?;
+                self.delete_object(&asset_key(&rec.id)).await?;
             } else {
                 alive.insert(rec.id);
             }

@@ -1,17 +1,24 @@
-//! Content-addressed blob storage and small JSON records under the data directory.
+//! Storage: content-addressed blobs and asset records in object storage ([`blobs`]: a local or
+//! shared directory, or S3), and the embedded backend's small JSON records under the data directory.
 //!
-//! Layout (all under `data_dir`):
+//! Layout (object store; by default rooted at `data_dir`):
 //! ```text
 //! blobs/sha256/ab/abcdef…   input assets and job outputs, named by the SHA-256 of their bytes
 //! assets/<sha256>.json      asset metadata (file name, size, last use)
-//! jobs/<id>.json            job records (see `jobs::record`)
+//! tmp/                      staging of streamed uploads
+//! ```
+//! Local files (always under `data_dir`):
+//! ```text
+//! jobs/<id>.json            job records of the embedded backend (see `jobs::record`)
+//! clouds/<id>.json          cloud scenes of the embedded backend
 //! tmp/                      staging for atomic writes (same file system, then rename)
 //! ```
-//! Every write goes to `tmp/` first, is fsynced, then renamed into place, so a crash never leaves a
-//! half-written blob or record under its final name. Blobs are immutable: writing a blob that exists
-//! is a no-op, which makes re-running a job idempotent.
+//! Every local write goes to `tmp/` first, is fsynced, then renamed into place, so a crash never
+//! leaves a half-written record under its final name. Blobs are immutable: writing a blob that
+//! exists is a no-op, which makes re-running a job idempotent.
 
 pub mod assets;
+mod blobs;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -34,6 +41,12 @@ pub enum StoreError {
         #[source]
         source: serde_json::Error,
     },
+    #[error("object store: {0}")]
+    Object(String),
+    #[error("the upload is larger than {max} bytes")]
+    TooLarge { max: u64 },
+    #[error("the upload was interrupted: {0}")]
+    Upload(String),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
@@ -55,58 +68,36 @@ pub fn is_sha256_hex(s: &str) -> bool {
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
 
-/// The on-disk store. Cheap to clone (just paths); all methods are blocking file I/O, to be called
-/// from `spawn_blocking` or worker threads.
+/// The store: blobs in object storage, records on the local disk. Cheap to clone. Blob methods
+/// are async; record methods are blocking file I/O, to be called from `spawn_blocking` or worker
+/// threads.
 #[derive(Debug, Clone)]
 pub struct Store {
     root: PathBuf,
+    blobs: blobs::Blobs,
 }
 
 impl Store {
-    /// Opens (creating if needed) the store under `root`.
+    /// Opens (creating if needed) the store under `root`, with blobs there too.
     pub fn open(root: &Path) -> Result<Self, StoreError> {
-        for sub in ["blobs/sha256", "assets", "jobs", "clouds", "tmp"] {
+        Self::open_with(root, None)
+    }
+
+    /// Opens the store under `root` with blobs and asset records in the object store at
+    /// `blob_url` (`file:///path`, `s3://bucket/prefix`) when given.
+    pub fn open_with(root: &Path, blob_url: Option<&str>) -> Result<Self, StoreError> {
+        for sub in ["jobs", "clouds", "tmp"] {
             let p = root.join(sub);
             std::fs::create_dir_all(&p).map_err(io(&p))?;
         }
         Ok(Self {
             root: root.to_path_buf(),
+            blobs: blobs::open(blob_url, root)?,
         })
     }
 
     pub fn root(&self) -> &Path {
         &self.root
-    }
-
-    /// Path of the blob with this digest (which must be validated hex).
-    pub fn blob_path(&self, sha: &str) -> PathBuf {
-        let prefix = sha.get(..2).unwrap_or("00");
-        self.root.join("blobs/sha256").join(prefix).join(sha)
-    }
-
-    pub fn has_blob(&self, sha: &str) -> bool {
-        is_sha256_hex(sha) && self.blob_path(sha).is_file()
-    }
-
-    /// Stores `bytes`, returning their SHA-256. Idempotent.
-    pub fn put_blob(&self, bytes: &[u8]) -> Result<String, StoreError> {
-        let sha = sha256_hex(bytes);
-        let path = self.blob_path(&sha);
-        if !path.is_file() {
-            self.write_atomic(&path, bytes)?;
-        }
-        Ok(sha)
-    }
-
-    pub fn read_blob(&self, sha: &str) -> Result<Vec<u8>, StoreError> {
-        let path = self.blob_path(sha);
-        std::fs::read(&path).map_err(io(&path))
-    }
-
-    /// Size in bytes of a stored blob.
-    pub fn blob_size(&self, sha: &str) -> Result<u64, StoreError> {
-        let path = self.blob_path(sha);
-        Ok(std::fs::metadata(&path).map_err(io(&path))?.len())
     }
 
     /// Writes `bytes` to `path` atomically: a temp file in `tmp/`, fsync, rename.
@@ -169,96 +160,87 @@ impl Store {
             }),
         }
     }
-
-    /// Removes blobs not in `keep` and older than `min_age` (so blobs being written by a job that
-    /// has not yet recorded them survive). Returns (files removed, bytes freed).
-    pub fn sweep_blobs(
-        &self,
-        keep: &std::collections::HashSet<String>,
-        min_age: std::time::Duration,
-    ) -> Result<(u64, u64), StoreError> {
-        let dir = self.root.join("blobs/sha256");
-        let mut removed = (0u64, 0u64);
-        let now = std::time::SystemTime::now();
-        for prefix in std::fs::read_dir(&dir).map_err(io(&dir))? {
-            let prefix = prefix.map_err(io(&dir))?.path();
-            let Ok(entries) = std::fs::read_dir(&prefix) else {
-                continue;
-            };
-            for entry in entries.flatten() {
-                let name = entry.file_name().to_string_lossy().into_owned();
-                if keep.contains(&name) {
-                    continue;
-                }
-                let Ok(meta) = entry.metadata() else { continue };
-                let old = meta
-                    .modified()
-                    .ok()
-                    .and_then(|m| now.duration_since(m).ok())
-                    .is_some_and(|age| age >= min_age);
-                if old && std::fs::remove_file(entry.path()).is_ok() {
-                    removed.0 += 1;
-                    removed.1 += meta.len();
-                }
-            }
-        }
-        Ok(removed)
-    }
-
-    /// Total bytes held in blobs (for the `phenomena_store_bytes` gauge).
-    pub fn blob_bytes(&self) -> u64 {
-        let dir = self.root.join("blobs/sha256");
-        let Ok(prefixes) = std::fs::read_dir(&dir) else {
-            return 0;
-        };
-        prefixes
-            .flatten()
-            .filter_map(|p| std::fs::read_dir(p.path()).ok())
-            .flat_map(|d| d.flatten())
-            .filter_map(|e| e.metadata().ok())
-            .map(|m| m.len())
-            .sum()
-    }
-
-    /// Checks that the store is writable (readiness).
-    pub fn probe(&self) -> bool {
-        let dir = self.root.join("tmp");
-        tempfile::NamedTempFile::new_in(&dir)
-            .and_then(|mut f| f.write_all(b"ok"))
-            .is_ok()
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn blobs_are_content_addressed_and_idempotent() {
+    #[tokio::test]
+    async fn blobs_are_content_addressed_and_idempotent() {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(dir.path()).unwrap();
-        let a = store.put_blob(b"hello").unwrap();
+        let a = store
+            .put_blob(bytes::Bytes::from_static(b"hello"))
+            .await
+            .unwrap();
         assert_eq!(
             a,
             "2cf24dba5fb0a30e26e83b2ac5b9e29e1b161e5c1fa7425e73043362938b9824"
         );
-        assert_eq!(store.put_blob(b"hello").unwrap(), a);
-        assert_eq!(store.read_blob(&a).unwrap(), b"hello");
-        assert_eq!(store.blob_size(&a).unwrap(), 5);
-        assert!(store.has_blob(&a));
-        assert!(!store.has_blob("../../etc/passwd"));
+        assert_eq!(
+            store
+                .put_blob(bytes::Bytes::from_static(b"hello"))
+                .await
+                .unwrap(),
+            a
+        );
+        assert_eq!(store.read_blob(&a).await.unwrap().as_ref(), b"hello");
+        assert_eq!(store.blob_size(&a).await.unwrap(), 5);
+        assert!(store.has_blob(&a).await);
+        assert!(!store.has_blob("../../etc/passwd").await);
+        // The local layout: blobs/sha256/<first two hex digits>/<digest>.
+        assert!(dir.path().join("blobs/sha256/2c").join(&a).is_file());
     }
 
-    #[test]
-    fn sweep_keeps_referenced_blobs() {
+    #[tokio::test]
+    async fn streamed_uploads_hash_as_they_go_and_respect_the_limit() {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(dir.path()).unwrap();
-        let a = store.put_blob(b"keep").unwrap();
-        let b = store.put_blob(b"drop").unwrap();
+        let chunks: Vec<Result<bytes::Bytes, StoreError>> = (0..40)
+            .map(|i| Ok(bytes::Bytes::from(vec![i as u8; 100_000])))
+            .collect();
+        let whole: Vec<u8> = (0..40).flat_map(|i| vec![i as u8; 100_000]).collect();
+        let (sha, size) = store
+            .put_blob_stream(futures_util::stream::iter(chunks), 10_000_000)
+            .await
+            .unwrap();
+        assert_eq!(size, 4_000_000);
+        assert_eq!(sha, sha256_hex(&whole));
+        assert_eq!(
+            store.read_blob(&sha).await.unwrap().as_ref(),
+            whole.as_slice()
+        );
+        let chunks: Vec<Result<bytes::Bytes, StoreError>> = (0..3)
+            .map(|_| Ok(bytes::Bytes::from(vec![1u8; 1000])))
+            .collect();
+        let r = store
+            .put_blob_stream(futures_util::stream::iter(chunks), 2500)
+            .await;
+        assert!(matches!(r, Err(StoreError::TooLarge { max: 2500 })));
+        // Nothing half-written is left under blobs/.
+        assert_eq!(store.blob_bytes().await, 4_000_000);
+    }
+
+    #[tokio::test]
+    async fn sweep_keeps_referenced_blobs() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let a = store
+            .put_blob(bytes::Bytes::from_static(b"keep"))
+            .await
+            .unwrap();
+        let b = store
+            .put_blob(bytes::Bytes::from_static(b"drop"))
+            .await
+            .unwrap();
         let keep = [a.clone()].into_iter().collect();
-        let (n, bytes) = store.sweep_blobs(&keep, std::time::Duration::ZERO).unwrap();
+        let (n, bytes) = store
+            .sweep_blobs(&keep, std::time::Duration::ZERO)
+            .await
+            .unwrap();
         assert_eq!((n, bytes), (1, 4));
-        assert!(store.has_blob(&a));
-        assert!(!store.has_blob(&b));
+        assert!(store.has_blob(&a).await);
+        assert!(!store.has_blob(&b).await);
     }
 }

@@ -8,7 +8,8 @@
 // parameter, see the image change, orbit with the arrow keys; the snow-cover example mesh runs with the progress bar
 // reaching the end; in the cloud editor paint a sun-colour stroke (version count and image
 // change), drag a shadow (the sun direction in the state changes), undo (back to the previous
-// version and its image); download an output and check its bytes. Fails on any console error,
+// version and its image); the dust example runs and shows its render and fibre atlas; download
+// an output and check its bytes. Fails on any console error,
 // page error, or request to anything but the server.
 
 import assert from "node:assert/strict";
@@ -212,10 +213,19 @@ try {
   await shot("08-editor-undo");
   log("undo shows version 2");
 
-  // 5. Dust is a placeholder.
+  // 5. Dust: the example mesh, small textures; the render and the fibre atlas show.
   await page.click("#tab-dust");
-  assert.match(await page.locator("#panel-dust").textContent(), /not served yet/);
+  const du = page.locator("#panel-dust");
+  await du.locator("input[name=shells]").fill("8");
+  await du.locator("input[name=texture_size]").fill("128");
+  await du.locator("input[name=fibers]").fill("400");
+  await du.locator("button.example").click();
+  await page.waitForFunction(() => document.getElementById("panel-dust").dataset.status);
+  assert.equal(await du.getAttribute("data-status"), "succeeded");
+  await du.locator("img[data-output='render.png']").waitFor();
+  await du.locator("img[data-output='fibers.png']").waitFor();
   await shot("09-dust");
+  log("dust rendered with its fibre atlas");
 } finally {
   await browser.close();
 }

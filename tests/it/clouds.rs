@@ -125,6 +125,14 @@ async fn a_whole_edit_session_over_http() {
     assert_eq!(scene["versions"][0]["state"]["kappa"], json!(40.0));
     let v1 = scene["versions"][0]["state"].clone();
 
+    // A render of version 1 at the edit view: it carries the linear layers the sun-colour edit
+    // below reads instead of marching.
+    let mut body = view();
+    body["version"] = json!(1);
+    let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), body).await;
+    let job = checked(&spec, "post", "/v1/clouds/{id}/renders", r).await;
+    let v1_layers = output_blob(&job, "layers.bin");
+
     // Sun colour: paint the lit core red; the least-squares sun turns red.
     let (cx, cy) = (VIEW.0 as i64 / 2, VIEW.1 as i64 / 2);
     let v = edit(
@@ -143,6 +151,11 @@ async fn a_whole_edit_session_over_http() {
     assert!(sun[0] > 2.0 * sun[2], "the sun should turn red: {sun:?}");
     let v2_state = v["state"].clone();
     assert!(v["render_url"].is_string());
+    let v2_job = job_of(&s, &v).await;
+    assert_eq!(layers_input(&v2_job), Some(v1_layers.clone()), "{v2_job}");
+    assert!(stages(&v2_job).contains(&"recolor".to_string()), "{v2_job}");
+    // A sun-colour change leaves Ī, A and α alone: the new version's layers are the same blob.
+    assert_eq!(output_blob(&v2_job, "layers.bin"), v1_layers);
 
     // Ambient: paint blue into the cloud; the version gets its own field.
     let v = edit(
@@ -234,6 +247,74 @@ async fn a_whole_edit_session_over_http() {
         v.get("ambient_field").is_none(),
         "version 2 had no field: {v}"
     );
+    // Made at the view of version 2's own edit: that edit's render layers were read.
+    let v5_job = job_of(&s, &v).await;
+    assert_eq!(
+        layers_input(&v5_job),
+        Some(output_blob(&v2_job, "layers.bin"))
+    );
+    assert!(stages(&v5_job).contains(&"recolor".to_string()), "{v5_job}");
+
+    // At a view no render of version 4 has: marched, no layers input.
+    let mut body = with_view(json!({"strokes": [{"color": "#ffffff", "pixels": block(cx, cy)}]}));
+    body["width"] = json!(VIEW.0 + 2);
+    body["base_version"] = json!(4);
+    let v = edit(&s, &spec, &id, "sun-color", body).await;
+    assert_eq!(v["status"], "ready", "{v}");
+    let v6_job = job_of(&s, &v).await;
+    assert_eq!(layers_input(&v6_job), None, "{v6_job}");
+    assert!(
+        !stages(&v6_job).contains(&"recolor".to_string()),
+        "{v6_job}"
+    );
+}
+
+/// The job that computed a version.
+async fn job_of(s: &Server, version: &Value) -> Value {
+    let url = version["job_url"].as_str().unwrap();
+    s.client
+        .get(s.url(url))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap()
+}
+
+/// The blob of a finished job's output `name`.
+fn output_blob(job: &Value, name: &str) -> String {
+    assert_eq!(job["status"], "succeeded", "{job}");
+    job["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["name"] == name)
+        .unwrap_or_else(|| panic!("no {name} in {job}"))["sha256"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+/// The `layers.bin` auxiliary input of a job, if any.
+fn layers_input(job: &Value) -> Option<String> {
+    job["input"]["aux"]
+        .as_array()?
+        .iter()
+        .find(|a| a["name"] == "layers.bin")
+        .map(|a| a["blob"].as_str().unwrap().to_string())
+}
+
+/// The stages a job reported timings for.
+fn stages(job: &Value) -> Vec<String> {
+    job["timings"]
+        .as_array()
+        .map(|t| {
+            t.iter()
+                .map(|x| x["stage"].as_str().unwrap().to_string())
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -6,6 +6,7 @@ mod api;
 mod clouds;
 mod common;
 mod conformance;
+mod dust;
 mod openapi;
 mod restart;
 mod scale;

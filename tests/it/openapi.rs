@@ -264,6 +264,7 @@ fn every_parameter_is_documented_with_its_default() {
         (PipelineKind::SnowTerrain, "SnowTerrainParams"),
         (PipelineKind::SnowCover, "SnowCoverParams"),
         (PipelineKind::Cloud, "CloudParams"),
+        (PipelineKind::Dust, "DustParams"),
     ] {
         let props = spec["components"]["schemas"][schema]["properties"]
             .as_object()

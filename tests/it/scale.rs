@@ -408,3 +408,103 @@ async fn a_redis_restart_during_idle_time_is_survived() {
     std::fs::create_dir_all(&scratch).unwrap();
     assert_same_as_cli(&c, &r.addr, &after_id, &scratch, &input, &params2).await;
 }
+
+/// Submits `n` distinct small snow-terrain jobs to `api` and waits for all; returns seconds.
+async fn run_batch(c: &reqwest::Client, api: &Replica, input: &[u8], n: usize, salt: u32) -> f64 {
+    let t0 = Instant::now();
+    let mut ids = Vec::new();
+    for i in 0..n {
+        // Distinct parameters: no result reuse.
+        let p = json!({"width": 64 + i, "height": 48, "samples": 1, "cell_size": 30.0 + f64::from(salt)});
+        ids.push(
+            submit(c, api, input, &p).await["id"]
+                .as_str()
+                .unwrap()
+                .to_string(),
+        );
+    }
+    for id in &ids {
+        let d = wait_done(c, api, id, Duration::from_secs(600)).await;
+        assert_eq!(d["status"], "succeeded", "{d}");
+    }
+    t0.elapsed().as_secs_f64()
+}
+
+/// Round trips of one tiny job submitted with `Prefer: wait`, sequentially; returns the median
+/// in milliseconds.
+async fn median_round_trip(c: &reqwest::Client, r: &Replica, input: &[u8], n: usize) -> f64 {
+    let mut ms = Vec::new();
+    for i in 0..n {
+        let p = json!({"width": 16 + i, "height": 16, "samples": 1, "cell_size": 30.0});
+        let form = reqwest::multipart::Form::new()
+            .text("params", p.to_string())
+            .part(
+                "dem",
+                reqwest::multipart::Part::bytes(input.to_vec()).file_name("t.npy"),
+            );
+        let t0 = Instant::now();
+        let resp = c
+            .post(r.url("/v1/snow-terrain"))
+            .header("prefer", "wait=30")
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        let j: Value = resp.json().await.unwrap();
+        ms.push(t0.elapsed().as_secs_f64() * 1e3);
+        assert_eq!(j["status"], "succeeded", "{j}");
+    }
+    ms.sort_by(f64::total_cmp);
+    ms[ms.len() / 2]
+}
+
+/// BENCHMARKS.md "Scale-out": throughput of small jobs with 1, 2 and 3 worker processes (one
+/// pipeline thread each) behind one API replica, and the round trip of a tiny job on the embedded
+/// backend and on the Redis backend (one `both` process each).
+/// `cargo test --test it scale::scale_out_figures -- --ignored --nocapture`
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore]
+async fn scale_out_figures() {
+    let c = reqwest::Client::new();
+    let redis = redis_url();
+    let input = synthetic_npy_of(128);
+    let n = 60;
+    for k in 1..=3u32 {
+        let dir = tempfile::tempdir().unwrap();
+        let prefix = RedisPrefix::new();
+        let api = Replica::spawn(dir.path(), &redis, &prefix.0, "api", "api");
+        let _workers: Vec<Replica> = (0..k)
+            .map(|i| Replica::spawn(dir.path(), &redis, &prefix.0, "worker", &format!("w{i}")))
+            .collect();
+        run_batch(&c, &api, &input, 4, 99).await; // warm-up
+        let secs = run_batch(&c, &api, &input, n, k).await;
+        eprintln!(
+            "workers={k}: {n} jobs in {secs:.2} s = {:.1} jobs/s",
+            n as f64 / secs
+        );
+    }
+    let tiny = synthetic_npy_of(32);
+    // The data directory on disk (the embedded backend fsyncs each job record) and in memory.
+    for base in [std::env::temp_dir(), std::path::PathBuf::from("/dev/shm")] {
+        let dir = tempfile::tempdir_in(&base).unwrap();
+        let (child, addr) = spawn_server_with(dir.path(), &["--threads", "1"]);
+        let embedded = Replica {
+            child,
+            addr,
+            name: "embedded".into(),
+        };
+        median_round_trip(&c, &embedded, &tiny, 5).await;
+        let e = median_round_trip(&c, &embedded, &tiny, 41).await;
+        drop(embedded);
+        let dir = tempfile::tempdir_in(&base).unwrap();
+        let prefix = RedisPrefix::new();
+        let both = Replica::spawn(dir.path(), &redis, &prefix.0, "both", "both");
+        median_round_trip(&c, &both, &tiny, 5).await;
+        let r = median_round_trip(&c, &both, &tiny, 41).await;
+        eprintln!(
+            "data dir under {}: tiny job round trip (Prefer: wait), median of 41: embedded {e:.2} ms, redis {r:.2} ms, redis - embedded {:.2} ms",
+            base.display(),
+            r - e
+        );
+    }
+}

@@ -105,6 +105,12 @@ async fn examples_run_through_their_pipelines() {
             json!({"width": 64, "height": 48, "resolution": 48, "directions": 4, "steps": 4}),
         ),
         ("volume.npy", "cloud", json!({"width": 64, "height": 48})),
+        (
+            "mesh.obj",
+            "dust",
+            json!({"width": 64, "height": 48, "shells": 4, "texture_size": 64, "fibers": 100,
+                   "exposure_rays": 8}),
+        ),
     ] {
         let bytes = s
             .client

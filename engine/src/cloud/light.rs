@@ -21,7 +21,9 @@
 
 use rayon::prelude::*;
 
+use super::fastexp::exp_neg;
 use super::grid::GridFrame;
+use super::skip::DensityRows;
 use crate::geom::Volume;
 use crate::{Canceled, Control};
 
@@ -36,139 +38,220 @@ pub struct SunLight {
 }
 
 impl SunLight {
-    /// Sweeps the grid (see the module doc). Allocates the optical-depth grid (4 bytes per
-    /// voxel) and two slices.
+    /// Sweeps the grid (see the module doc). Allocates the result (4 bytes per voxel) and the
+    /// line lattice (8 bytes per line).
     pub fn compute(
         volume: &Volume,
         direction: [f64; 3],
         kappa: f64,
         ctl: &dyn Control,
     ) -> Result<Self, Canceled> {
-        let g = GridFrame::of(volume);
-        let s = direction;
-        let k = (0..3)
-            .max_by(|&a, &b| s[a].abs().total_cmp(&s[b].abs()))
-            .unwrap_or(1);
-        let (a, b) = match k {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
+        let mut transmittance = vec![0f32; volume.len()];
+        let out = SweepOut {
+            cells: &mut transmittance,
+            dims: volume.dims,
+            border: 0,
         };
-        let dims = g.dims;
-        let (na, nb, nk) = (dims[a], dims[b], dims[k]);
-        let sk = s[k];
-        // Segment length to the previous slice and the lateral offset there, in voxels.
-        let seg = g.h[k] / sk.abs();
-        let da = s[a] * seg / g.h[a];
-        let db = s[b] * seg / g.h[b];
-        let stride = [1usize, dims[0], dims[0] * dims[1]];
-        let rho = &volume.density;
-        // Sun-ray lines, indexed by their position in the slice nearest the sun; a line is at
-        // `(a0 − j·da, b0 − j·db)` in the j-th slice away from the sun.
-        let span = |d: f64| {
-            let far = (nk as f64 - 1.0) * d;
-            (
-                far.min(0.0).floor() as i64 - 2,
-                far.max(0.0).ceil() as i64 + 2,
-            )
-        };
-        let (a_lo, a_hi) = span(da);
-        let (b_lo, b_hi) = span(db);
-        let nla = (na as i64 + a_hi - a_lo) as usize;
-        let nlb = (nb as i64 + b_hi - b_lo) as usize;
-        let mut line_tau = vec![0f32; nla * nlb];
-        let mut line_rho = vec![0f32; nla * nlb];
-        let mut tau = vec![0f32; volume.len()];
-        let mut cur = vec![0f32; na * nb];
-        let segf = seg as f32;
-        // Slices from the sun side: if the sun is toward +k, the last slice is nearest.
-        for j in 0..nk {
-            if j % 8 == 0 {
-                ctl.checkpoint()?;
-            }
-            let ik = if sk > 0.0 { nk - 1 - j } else { j };
-            let base = ik * stride[k];
-            let (sa, sb) = (stride[a], stride[b]);
-            // Density in this slice at in-plane voxel coordinates (bilinear, clamped to the
-            // edge inside the box, 0 outside).
-            let rho_at = |pa: f64, pb: f64| -> f32 {
-                if pa < -0.5 || pa > na as f64 - 0.5 || pb < -0.5 || pb > nb as f64 - 0.5 {
-                    return 0.0;
-                }
-                let pa = pa.clamp(0.0, (na - 1) as f64);
-                let pb = pb.clamp(0.0, (nb - 1) as f64);
-                let a0 = (pa.floor() as usize).min(na - 1);
-                let b0 = (pb.floor() as usize).min(nb - 1);
-                let a1 = (a0 + 1).min(na - 1);
-                let b1 = (b0 + 1).min(nb - 1);
-                let fa = (pa - a0 as f64) as f32;
-                let fb = (pb - b0 as f64) as f32;
-                let r = |x: usize, y: usize| rho[base + x * sa + y * sb];
-                (1.0 - fb) * ((1.0 - fa) * r(a0, b0) + fa * r(a1, b0))
-                    + fb * ((1.0 - fa) * r(a0, b1) + fa * r(a1, b1))
-            };
-            let shift_a = j as f64 * da;
-            let shift_b = j as f64 * db;
-            // Advance the lines that are inside (or next to) the box in this slice.
-            line_tau
-                .par_chunks_mut(nla)
-                .zip(line_rho.par_chunks_mut(nla))
-                .enumerate()
-                .for_each(|(lb, (lt, lr))| {
-                    let pb = (b_lo + lb as i64) as f64 - shift_b;
-                    if !(-1.5..=nb as f64 + 0.5).contains(&pb) {
-                        return;
-                    }
-                    for la in 0..nla {
-                        let pa = (a_lo + la as i64) as f64 - shift_a;
-                        if !(-1.5..=na as f64 + 0.5).contains(&pa) {
-                            continue;
-                        }
-                        let r = rho_at(pa, pb);
-                        lt[la] = if j == 0 {
-                            // From the box face, half a slice away.
-                            0.5 * r * segf
-                        } else {
-                            lt[la] + 0.5 * (lr[la] + r) * segf
-                        };
-                        lr[la] = r;
-                    }
-                });
-            // Each voxel: bilinear between the four lines around it.
-            let (lt, nla_) = (&line_tau, nla);
-            cur.par_chunks_mut(na).enumerate().for_each(|(ib, row)| {
-                let fb_pos = ib as f64 + shift_b - b_lo as f64;
-                let lb0 = fb_pos.floor();
-                let fb = (fb_pos - lb0) as f32;
-                let lb0 = lb0 as usize;
-                for (ia, out) in row.iter_mut().enumerate() {
-                    let fa_pos = ia as f64 + shift_a - a_lo as f64;
-                    let la0 = fa_pos.floor();
-                    let fa = (fa_pos - la0) as f32;
-                    let la0 = la0 as usize;
-                    let t = |x: usize, y: usize| lt[x + nla_ * y];
-                    *out = (1.0 - fb) * ((1.0 - fa) * t(la0, lb0) + fa * t(la0 + 1, lb0))
-                        + fb * ((1.0 - fa) * t(la0, lb0 + 1) + fa * t(la0 + 1, lb0 + 1));
-                }
-            });
-            for ib in 0..nb {
-                for ia in 0..na {
-                    tau[base + ia * sa + ib * sb] = cur[ia + na * ib];
-                }
-            }
-        }
-        let kf = kappa as f32;
-        tau.par_chunks_mut(4096).for_each(|c| {
-            for t in c {
-                *t = (-kf * *t).exp();
-            }
-        });
+        sweep(volume, direction, kappa, None, out, |t, _, v| *t = v, ctl)?;
         Ok(Self {
             direction,
             kappa,
-            transmittance: tau,
+            transmittance,
         })
     }
+}
+
+/// Where [`sweep`] writes: a grid of cells in the volume's layout (x fastest), `border` cells
+/// larger than the volume on every side (voxel (x, y, z) is cell (x, y, z) + `border`).
+pub(crate) struct SweepOut<'a, E> {
+    pub cells: &'a mut [E],
+    pub dims: [usize; 3],
+    pub border: usize,
+}
+
+/// The sheared line sweep of the module doc, calling `put(cell, voxel index, T_sun)` for every
+/// voxel — or, when `dense` is given, only for the voxels of slice rows that hold density (the
+/// renderer needs ρ·T_sun, which is 0 elsewhere, and lines crossing only empty rows are not
+/// advanced: their optical depth does not change). Cost O(voxels) (O(dense rows) with `dense`).
+pub(crate) fn sweep<E: Send>(
+    volume: &Volume,
+    direction: [f64; 3],
+    kappa: f64,
+    dense: Option<&DensityRows>,
+    out: SweepOut<'_, E>,
+    put: impl Fn(&mut E, usize, f32) + Sync,
+    ctl: &dyn Control,
+) -> Result<(), Canceled> {
+    let g = GridFrame::of(volume);
+    let s = direction;
+    let k = (0..3)
+        .max_by(|&a, &b| s[a].abs().total_cmp(&s[b].abs()))
+        .unwrap_or(1);
+    let (a, b) = match k {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    let dims = g.dims;
+    let (na, nb, nk) = (dims[a], dims[b], dims[k]);
+    let sk = s[k];
+    // Segment length to the previous slice and the lateral offset there, in voxels.
+    let seg = g.h[k] / sk.abs();
+    let da = s[a] * seg / g.h[a];
+    let db = s[b] * seg / g.h[b];
+    let stride = [1usize, dims[0], dims[0] * dims[1]];
+    let (sa, sb) = (stride[a], stride[b]);
+    let rho = &volume.density;
+    let row_dense = |ik: usize, ib: usize| dense.is_none_or(|d| d.slice_row(k, ik, ib));
+    // Sun-ray lines, indexed by their position in the slice nearest the sun; a line is at
+    // `(a_lo + la − j·da, b_lo + lb − j·db)` in the j-th slice away from the sun.
+    let span = |d: f64| {
+        let far = (nk as f64 - 1.0) * d;
+        (
+            far.min(0.0).floor() as i64 - 2,
+            far.max(0.0).ceil() as i64 + 2,
+        )
+    };
+    let (a_lo, a_hi) = span(da);
+    let (b_lo, b_hi) = span(db);
+    let nla = (na as i64 + a_hi - a_lo) as usize;
+    let nlb = (nb as i64 + b_hi - b_lo) as usize;
+    // Per line: accumulated optical depth and the density where it crossed the last slice;
+    // per row of lines: whether any line in it still carries a density.
+    let mut lines = vec![[0f32; 2]; nla * nlb];
+    let mut row_live = vec![false; nlb];
+    let segf = seg as f32;
+    let kf = kappa as f32;
+    let (na_i, nb_i) = (na as i64, nb as i64);
+    let SweepOut {
+        cells,
+        dims: odims,
+        border: o,
+    } = out;
+    let oxy = odims[0] * odims[1];
+    for j in 0..nk {
+        if j % 8 == 0 {
+            ctl.checkpoint()?;
+        }
+        let ik = if sk > 0.0 { nk - 1 - j } else { j };
+        let base = ik * stride[k];
+        // The lines sit at integer + (qa_i, qb_i) + fraction (fa, fb), the same fraction for
+        // every line of the slice.
+        let qa = -(j as f64) * da;
+        let qb = -(j as f64) * db;
+        let (qa_i, qb_i) = (qa.floor(), qb.floor());
+        let (fa, fb) = ((qa - qa_i) as f32, (qb - qb_i) as f32);
+        let (qa_i, qb_i) = (qa_i as i64, qb_i as i64);
+        // In the box (±½ voxel about the outermost centres) at integer position i + f?
+        let inside = |i: i64, f: f32, n: i64| {
+            i >= -1 && i < n && {
+                let p = i as f32 + f;
+                (-0.5..=n as f32 - 0.5).contains(&p)
+            }
+        };
+        lines
+            .par_chunks_mut(nla)
+            .zip(row_live.par_iter_mut())
+            .enumerate()
+            .for_each(|(lb, (row, live))| {
+                let b0 = b_lo + lb as i64 + qb_i;
+                let (ib0, ib1) = (
+                    b0.clamp(0, nb_i - 1) as usize,
+                    (b0 + 1).clamp(0, nb_i - 1) as usize,
+                );
+                if !inside(b0, fb, nb_i) || !(row_dense(ik, ib0) || row_dense(ik, ib1)) {
+                    if *live {
+                        // Into ρ = 0: the last half segment.
+                        for l in row.iter_mut() {
+                            l[0] += 0.5 * l[1] * segf;
+                            l[1] = 0.0;
+                        }
+                        *live = false;
+                    }
+                    return;
+                }
+                *live = true;
+                let (cb0, cb1) = (base + ib0 * sb, base + ib1 * sb);
+                for (la, l) in row.iter_mut().enumerate() {
+                    let a0 = a_lo + la as i64 + qa_i;
+                    let r = if inside(a0, fa, na_i) {
+                        let ca0 = a0.clamp(0, na_i - 1) as usize * sa;
+                        let ca1 = (a0 + 1).clamp(0, na_i - 1) as usize * sa;
+                        (1.0 - fb) * ((1.0 - fa) * rho[cb0 + ca0] + fa * rho[cb0 + ca1])
+                            + fb * ((1.0 - fa) * rho[cb1 + ca0] + fa * rho[cb1 + ca1])
+                    } else {
+                        0.0
+                    };
+                    l[0] += 0.5 * (l[1] + r) * segf;
+                    l[1] = r;
+                }
+            });
+        // Each voxel: bilinear between the four lines around it (voxel ia is at line
+        // coordinate ia − a_lo − qa).
+        let (wa, wb) = (-(a_lo as f64) - qa, -(b_lo as f64) - qb);
+        let (wa_i, wb_i) = (wa.floor(), wb.floor());
+        let (ga, gb) = ((wa - wa_i) as f32, (wb - wb_i) as f32);
+        let (wa_i, wb_i) = (wa_i as usize, wb_i as usize);
+        let lt = &lines;
+        // Row ib of the slice: T_sun of voxels (0..na, ib) into `buf`; false when skipped.
+        let voxel_row = |ib: usize, buf: &mut [f32]| {
+            if !row_dense(ik, ib) {
+                return false;
+            }
+            let r0 = &lt[nla * (ib + wb_i) + wa_i..][..na + 1];
+            let r1 = &lt[nla * (ib + wb_i + 1) + wa_i..][..na + 1];
+            for (ia, t) in buf.iter_mut().enumerate() {
+                let tau = (1.0 - gb) * ((1.0 - ga) * r0[ia][0] + ga * r0[ia + 1][0])
+                    + gb * ((1.0 - ga) * r1[ia][0] + ga * r1[ia + 1][0]);
+                *t = exp_neg(-kf * tau);
+            }
+            true
+        };
+        let voxel = |ia: usize, ib: usize| base + ia * sa + ib * sb;
+        // Written in place; the rows of a slice are disjoint. Row ib of slice ik is a run of
+        // cells for k = z (slab ik) and k = y (slab ib), a column of slab ib for k = x.
+        let init = || vec![0f32; na];
+        match k {
+            2 => cells[(ik + o) * oxy..][..oxy]
+                .par_chunks_mut(odims[0])
+                .skip(o)
+                .take(nb)
+                .enumerate()
+                .for_each_init(init, |buf, (ib, row)| {
+                    if voxel_row(ib, buf) {
+                        for (ia, (c, t)) in row[o..][..na].iter_mut().zip(buf.iter()).enumerate() {
+                            put(c, voxel(ia, ib), *t);
+                        }
+                    }
+                }),
+            1 => cells
+                .par_chunks_mut(oxy)
+                .skip(o)
+                .take(nb)
+                .enumerate()
+                .for_each_init(init, |buf, (ib, slab)| {
+                    if voxel_row(ib, buf) {
+                        let row = &mut slab[(ik + o) * odims[0] + o..][..na];
+                        for (ia, (c, t)) in row.iter_mut().zip(buf.iter()).enumerate() {
+                            put(c, voxel(ia, ib), *t);
+                        }
+                    }
+                }),
+            _ => cells
+                .par_chunks_mut(oxy)
+                .skip(o)
+                .take(nb)
+                .enumerate()
+                .for_each_init(init, |buf, (ib, slab)| {
+                    if voxel_row(ib, buf) {
+                        for (ia, t) in buf.iter().enumerate() {
+                            put(&mut slab[(ia + o) * odims[0] + ik + o], voxel(ia, ib), *t);
+                        }
+                    }
+                }),
+        }
+    }
+    Ok(())
 }
 
 /// Reference: `T_sun` at world point `p`, marched toward the sun with `steps_per_voxel` midpoint

@@ -24,32 +24,48 @@
 
 use rayon::prelude::*;
 
+use super::fastexp::exp_neg;
 use super::grid::GridFrame;
-use super::light::SunLight;
+pub use super::layers::{Layers, Show};
+use super::light::{sweep, SunLight, SweepOut};
+use super::skip::{DensityRows, EmptySpace};
 use super::state::{AmbientField, CloudState};
 use crate::geom::Volume;
 use crate::render::camera::Camera;
-use crate::render::image::{linear_to_srgb8, srgb8_to_linear, RgbaImage};
 use crate::{Canceled, Control};
 
-/// Edge of an occupancy brick, voxels.
-const BRICK: usize = 8;
 /// The march stops when the view transmittance falls below this.
 pub const MIN_TRANSMITTANCE: f32 = 1e-3;
 
-/// Everything a ray needs, prepared once per render: ρ and ρ·T_sun per voxel, ρ·I_m when an
-/// ambient field exists, and the brick occupancy. Allocates 8 bytes per voxel (20 with a field).
+/// Rows of pixels per parallel task: 8-row bands walked in 8×8 tiles, so that neighbouring rays
+/// (which read the same voxels) run back to back.
+const TILE: usize = 8;
+
+/// The per-cell sources, interleaved so that one trilinear gather fetches them all.
+#[derive(Debug, Clone)]
+enum Sources {
+    /// `(ρ, ρ·T_sun)`: uniform ambient.
+    Uniform(Vec<[f32; 2]>),
+    /// `(ρ, ρ·T_sun, ρ·ambient_scale·I_m)`: a per-voxel ambient field.
+    Field(Vec<[f32; 5]>),
+}
+
+/// Everything a ray needs, prepared once per render: the sources per cell of the *padded* grid
+/// (the voxels plus a one-cell border repeating the faces, which is exactly the edge clamping of
+/// [`GridFrame::trilinear`], so a gather needs no clamping) and the empty-space grid
+/// ([`EmptySpace`]). Allocates 8 bytes per padded cell (20 with an ambient field).
 #[derive(Debug, Clone)]
 pub struct Prepared {
     pub frame: GridFrame,
-    /// `(ρ, ρ·T_sun)` per voxel.
-    source: Vec<[f32; 2]>,
-    /// `ρ·ambient_scale·I_m` per voxel, when the state has a field.
-    ambient_field: Option<Vec<[f32; 3]>>,
+    /// Padded grid size: `dims + 2`.
+    pad: [usize; 3],
+    sources: Sources,
     /// Uniform I_m when there is no field.
     ambient_uniform: [f32; 3],
-    occupied: Vec<bool>,
-    bricks: [usize; 3],
+    empty: EmptySpace,
+    /// World box holding every sample that can read a density (from
+    /// [`EmptySpace::occupied`], widened by a cell); `None` for an empty volume.
+    occupied: Option<([f64; 3], [f64; 3])>,
     kappa: f32,
     step: f64,
     sun: [f64; 3],
@@ -65,17 +81,125 @@ pub struct PixelSample {
     pub transmittance: f32,
 }
 
-/// The linear layers of a render, row-major, row 0 at the top.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Layers {
-    pub width: u32,
-    pub height: u32,
-    /// Ī per pixel.
-    pub direct: Vec<f32>,
-    /// A per pixel, linear RGB.
-    pub ambient: Vec<[f32; 3]>,
-    /// 1 − g(T) per pixel.
-    pub alpha: Vec<f32>,
+/// Copies `cell(voxel index)` into the padded layout (border cells repeat the face voxels).
+fn padded<T: Copy + Default + Send + Sync>(
+    dims: [usize; 3],
+    cell: impl Fn(usize) -> T + Sync,
+) -> Vec<T> {
+    let pad = dims.map(|n| n + 2);
+    let clamp = |c: usize, n: usize| c.saturating_sub(1).min(n - 1);
+    let mut out = vec![T::default(); pad[0] * pad[1] * pad[2]];
+    out.par_chunks_mut(pad[0] * pad[1])
+        .enumerate()
+        .for_each(|(pz, slab)| {
+            let z = clamp(pz, dims[2]);
+            for (py, row) in slab.chunks_mut(pad[0]).enumerate() {
+                let y = clamp(py, dims[1]);
+                let base = dims[0] * (y + dims[1] * z);
+                row[0] = cell(base);
+                for (x, o) in row[1..=dims[0]].iter_mut().enumerate() {
+                    *o = cell(base + x);
+                }
+                row[dims[0] + 1] = cell(base + dims[0] - 1);
+            }
+        });
+    out
+}
+
+/// The parameter interval where the ray `o + t·d` is inside the box `[lo, hi]` (t ≥ 0).
+#[inline]
+fn clip_box(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let inv = 1.0 / d[k];
+        let (a, b) = ((lo[k] - o[k]) * inv, (hi[k] - o[k]) * inv);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    (t1 >= t0).then_some((t0, t1))
+}
+
+/// The ambient field, if it fits the volume.
+fn field_of<'a>(volume: &Volume, ambient: Option<&'a AmbientField>) -> Option<&'a [[f32; 3]]> {
+    ambient
+        .filter(|f| f.rgb.len() == volume.len())
+        .map(|f| f.rgb.as_slice())
+}
+
+/// The sources of a voxel with a field: `(ρ, ρ·T_sun, ρ·scale·I_m)`.
+#[inline]
+fn field_source(rho: f32, t: f32, c: [f32; 3], scale: f32) -> [f32; 5] {
+    [
+        rho,
+        rho * t,
+        rho * c[0] * scale,
+        rho * c[1] * scale,
+        rho * c[2] * scale,
+    ]
+}
+
+/// Fills the one-cell border of a padded grid of `pad` cells with copies of the faces inside
+/// it (x faces, then y, then z, so edges and corners repeat the corner voxels).
+fn fill_border<T: Copy + Send + Sync>(cells: &mut [T], pad: [usize; 3]) {
+    let [px, py, pz] = pad;
+    let pxy = px * py;
+    cells.par_chunks_mut(pxy).for_each(|slab| {
+        for row in slab.chunks_mut(px) {
+            row[0] = row[1];
+            row[px - 1] = row[px - 2];
+        }
+        slab.copy_within(px..2 * px, 0);
+        slab.copy_within((py - 2) * px..(py - 1) * px, (py - 1) * px);
+    });
+    cells.copy_within(pxy..2 * pxy, 0);
+    cells.copy_within((pz - 2) * pxy..(pz - 1) * pxy, (pz - 1) * pxy);
+}
+
+/// A ray in padded-cell coordinates: sample `i` is at `origin + (i + ½)·step`.
+struct GridRay {
+    origin: [f32; 3],
+    step: [f32; 3],
+    inv_step: [f32; 3],
+    /// Highest floor cell per axis (`dims`), for clamping.
+    max: [f32; 3],
+}
+
+impl GridRay {
+    #[inline]
+    fn at(&self, i: usize) -> [f32; 3] {
+        let u = i as f32 + 0.5;
+        std::array::from_fn(|k| (self.origin[k] + u * self.step[k]).clamp(0.0, self.max[k]))
+    }
+
+    /// Index of the first sample at or past the exit of the empty cube of blocks
+    /// `[lo, hi)` (cell coordinates) that sample `i` is in; at least `i + 1`.
+    #[inline]
+    fn leap(&self, i: usize, lo: [f32; 3], hi: [f32; 3]) -> usize {
+        // Shrunk by a thousandth of a cell so that rounding never leaps past an occupied cell.
+        let mut u_exit = f32::INFINITY;
+        for k in 0..3 {
+            let s = self.step[k];
+            if s > 0.0 {
+                u_exit = u_exit.min((hi[k] - 1e-3 - self.origin[k]) * self.inv_step[k]);
+            } else if s < 0.0 {
+                u_exit = u_exit.min((lo[k] + 1e-3 - self.origin[k]) * self.inv_step[k]);
+            }
+        }
+        // ⌈u_exit − ½⌉ without a libm call (positive here); NaN and ∞ fail the test.
+        let x = u_exit - 0.5;
+        if x > i as f32 + 1.0 && x < 1e9 {
+            let n = x as usize;
+            n + usize::from((n as f32) < x)
+        } else {
+            i + 1
+        }
+    }
 }
 
 impl Prepared {
@@ -87,30 +211,86 @@ impl Prepared {
         state: &CloudState,
         ambient: Option<&AmbientField>,
     ) -> Self {
-        let frame = GridFrame::of(volume);
-        let source: Vec<[f32; 2]> = volume
-            .density
-            .par_iter()
-            .zip(light.transmittance.par_iter())
-            .map(|(&r, &t)| [r, r * t])
-            .collect();
+        let dims = volume.dims;
+        let (rho, tsun) = (&volume.density, &light.transmittance);
         let scale = state.ambient_scale as f32;
-        let ambient_field = ambient.filter(|f| f.rgb.len() == volume.len()).map(|f| {
-            volume
-                .density
-                .par_iter()
-                .zip(f.rgb.par_iter())
-                .map(|(&r, c)| c.map(|v| r * v * scale))
-                .collect()
+        let sources = match field_of(volume, ambient) {
+            Some(f) => Sources::Field(padded(dims, |i| field_source(rho[i], tsun[i], f[i], scale))),
+            None => Sources::Uniform(padded(dims, |i| [rho[i], rho[i] * tsun[i]])),
+        };
+        Self::with_sources(volume, &DensityRows::of(volume), sources, state)
+    }
+
+    /// [`SunLight::compute`] and [`Prepared::new`] in one: the sweep writes ρ·T_sun straight
+    /// into the padded sources and only for the slice rows that hold density (elsewhere
+    /// ρ·T_sun = 0), so neither the transmittance grid nor the empty rows' work exists.
+    /// Gives the same sources as the two steps.
+    pub fn lit(
+        volume: &Volume,
+        state: &CloudState,
+        ambient: Option<&AmbientField>,
+        ctl: &dyn Control,
+    ) -> Result<Self, Canceled> {
+        let dims = volume.dims;
+        let pad = dims.map(|n| n + 2);
+        let cells = pad[0] * pad[1] * pad[2];
+        let rows = DensityRows::of(volume);
+        let (dir, kappa, rho) = (state.sun_direction, state.kappa, &volume.density);
+        let scale = state.ambient_scale as f32;
+        let sources = match field_of(volume, ambient) {
+            Some(f) => {
+                let mut src = vec![[0f32; 5]; cells];
+                let out = SweepOut {
+                    cells: &mut src,
+                    dims: pad,
+                    border: 1,
+                };
+                let put = |c: &mut [f32; 5], i: usize, t: f32| {
+                    *c = field_source(rho[i], t, f[i], scale);
+                };
+                sweep(volume, dir, kappa, Some(&rows), out, put, ctl)?;
+                fill_border(&mut src, pad);
+                Sources::Field(src)
+            }
+            None => {
+                let mut src = vec![[0f32; 2]; cells];
+                let out = SweepOut {
+                    cells: &mut src,
+                    dims: pad,
+                    border: 1,
+                };
+                let put = |c: &mut [f32; 2], i: usize, t: f32| *c = [rho[i], rho[i] * t];
+                sweep(volume, dir, kappa, Some(&rows), out, put, ctl)?;
+                fill_border(&mut src, pad);
+                Sources::Uniform(src)
+            }
+        };
+        Ok(Self::with_sources(volume, &rows, sources, state))
+    }
+
+    fn with_sources(
+        volume: &Volume,
+        rows: &DensityRows,
+        sources: Sources,
+        state: &CloudState,
+    ) -> Self {
+        let frame = GridFrame::of(volume);
+        let empty = EmptySpace::build(rows);
+        // Floor position c is padded coordinate c, i.e. world lo + (c − ½)·h; one cell margin.
+        let occupied = empty.occupied.map(|(clo, chi)| {
+            let w = |c: f64, k: usize| frame.lo[k] + (c - 0.5) * frame.h[k];
+            (
+                std::array::from_fn(|k| w(clo[k] as f64 - 1.0, k)),
+                std::array::from_fn(|k| w(chi[k] as f64 + 1.0, k)),
+            )
         });
-        let (occupied, bricks) = occupancy(volume);
         Self {
             frame,
-            source,
-            ambient_field,
-            ambient_uniform: state.ambient.map(|v| v as f32),
+            pad: volume.dims.map(|n| n + 2),
+            sources,
             occupied,
-            bricks,
+            ambient_uniform: state.ambient.map(|v| v as f32),
+            empty,
             kappa: state.kappa as f32,
             step: state.step,
             sun: state.sun_direction,
@@ -130,93 +310,112 @@ impl Prepared {
         ((1.0 - g * g) / (1.0 + g * g - 2.0 * g * cos).powf(1.5)) as f32
     }
 
-    #[inline]
-    fn brick_empty(&self, p: [f64; 3]) -> bool {
-        let c = self.frame.voxel_of(p);
-        let b = [c[0] / BRICK, c[1] / BRICK, c[2] / BRICK];
-        !self.occupied[b[0] + self.bricks[0] * (b[1] + self.bricks[1] * b[2])]
-    }
-
-    /// Exit parameter of the ray from the brick containing `p`.
-    #[inline]
-    fn brick_exit(&self, o: [f64; 3], d: [f64; 3], p: [f64; 3]) -> f64 {
-        let c = self.frame.voxel_of(p);
-        let mut t = f64::INFINITY;
-        for k in 0..3 {
-            let b = c[k] / BRICK;
-            let lo = self.frame.lo[k] + (b * BRICK) as f64 * self.frame.h[k];
-            let hi = self.frame.lo[k] + ((b + 1) * BRICK) as f64 * self.frame.h[k];
-            if d[k] > 1e-300 {
-                t = t.min((hi - o[k]) / d[k]);
-            } else if d[k] < -1e-300 {
-                t = t.min((lo - o[k]) / d[k]);
-            }
-        }
-        t
-    }
-
     /// Marches one ray from `o` along unit `d`. No allocation.
+    ///
+    /// The samples are those of the whole box (n equal segments of about `step` voxels between
+    /// the box's entry and exit), but only those inside the box of occupied blocks are visited.
     pub fn march(&self, o: [f64; 3], d: [f64; 3]) -> PixelSample {
         let mut out = PixelSample {
             transmittance: 1.0,
             ..PixelSample::default()
         };
-        let Some((t0, t1)) = self.frame.clip(o, d) else {
+        let f = &self.frame;
+        let Some((t0, t1)) = f.clip(o, d) else {
+            return out;
+        };
+        let Some((lo, hi)) = self.occupied else {
+            return out;
+        };
+        let Some((ta, tb)) = clip_box(o, d, lo, hi) else {
             return out;
         };
         let len = t1 - t0;
-        let n = (len / (self.step * self.frame.min_h())).ceil().max(1.0) as usize;
+        let n = (len / (self.step * f.min_h())).ceil().max(1.0) as usize;
         let dt = len / n as f64;
+        // Samples i with t0 + (i + ½)·dt in [ta, tb], widened by one.
+        let first = ((ta - t0) / dt - 1.5).max(0.0) as usize;
+        let last = (((tb - t0) / dt + 0.5).max(0.0) as usize + 1).min(n);
+        if first >= last {
+            return out;
+        }
+        // Padded cell coordinate of world p along k: (p − lo)/h − ½ + 1.
+        let ray = GridRay {
+            origin: std::array::from_fn(|k| ((o[k] + t0 * d[k] - f.lo[k]) / f.h[k] + 0.5) as f32),
+            step: std::array::from_fn(|k| (dt * d[k] / f.h[k]) as f32),
+            inv_step: std::array::from_fn(|k| (f.h[k] / (dt * d[k])) as f32),
+            max: std::array::from_fn(|k| f.dims[k] as f32 + 0.999),
+        };
+        let span = first..last;
         let dtf = dt as f32;
+        let (direct, ambient, g) = match &self.sources {
+            Sources::Uniform(s) => self.integrate(s, &ray, span, dtf, |c, wgt, amb| {
+                for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
+                    *m += wgt * c[0] * u;
+                }
+            }),
+            Sources::Field(s) => self.integrate(s, &ray, span, dtf, |c, wgt, amb| {
+                for (m, x) in amb.iter_mut().zip(&c[2..5]) {
+                    *m += wgt * x;
+                }
+            }),
+        };
+        out.direct = direct * self.phase(d);
+        out.ambient = ambient;
+        out.transmittance = g;
+        out
+    }
+
+    /// The sample loop of [`Prepared::march`] over sources of `N` channels (ρ and ρ·T_sun
+    /// first); `ambient(c, wgt, acc)` adds a segment's ambient. Returns (Ī before the phase, A,
+    /// g).
+    #[inline]
+    fn integrate<const N: usize>(
+        &self,
+        src: &[[f32; N]],
+        ray: &GridRay,
+        span: std::ops::Range<usize>,
+        dt: f32,
+        ambient: impl Fn(&[f32; N], f32, &mut [f32; 3]),
+    ) -> (f32, [f32; 3], f32) {
+        let (px, pxy) = (self.pad[0], self.pad[0] * self.pad[1]);
         let mut g = 1.0f32;
         let mut direct = 0.0f32;
         let mut amb = [0.0f32; 3];
-        let mut i = 0usize;
+        let (mut i, n) = (span.start, span.end);
         while i < n {
-            let t = t0 + (i as f64 + 0.5) * dt;
-            let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-            if self.brick_empty(p) {
-                let te = self.brick_exit(o, d, p);
-                // First sample at or past the brick's exit.
-                let next = ((te - t0) / dt - 0.5).ceil();
-                i = if next.is_finite() && next > i as f64 {
-                    next as usize
-                } else {
-                    i + 1
-                };
+            let p = ray.at(i);
+            // Non-negative: truncation is the floor (and avoids a libm call).
+            let c = [p[0] as usize, p[1] as usize, p[2] as usize];
+            let dist = self.empty.at(c[0], c[1], c[2]);
+            if dist > 0 {
+                let r = usize::from(dist) - 1;
+                let b = c.map(|v| v / super::skip::BLOCK);
+                let bs = super::skip::BLOCK as f32;
+                let lo = b.map(|v| (v as f32 - r as f32) * bs);
+                let hi = b.map(|v| (v + r + 1) as f32 * bs);
+                i = ray.leap(i, lo, hi);
                 continue;
             }
-            let tl = self.frame.trilinear(p);
-            let mut rho = 0.0f32;
-            let mut rho_t = 0.0f32;
-            for c in 0..8 {
-                let s = self.source[tl.idx[c]];
-                rho += tl.w[c] * s[0];
-                rho_t += tl.w[c] * s[1];
-            }
+            let fx = p[0] - c[0] as f32;
+            let fy = p[1] - c[1] as f32;
+            let fz = p[2] - c[2] as f32;
+            let i0 = c[0] + px * c[1] + pxy * c[2];
+            let lerp = |a: &[f32; N], b: &[f32; N], t: f32| -> [f32; N] {
+                std::array::from_fn(|q| a[q] + t * (b[q] - a[q]))
+            };
+            let row = |j: usize| -> [f32; N] {
+                let r = &src[j..j + 2];
+                lerp(&r[0], &r[1], fx)
+            };
+            let y0 = lerp(&row(i0), &row(i0 + px), fy);
+            let y1 = lerp(&row(i0 + pxy), &row(i0 + pxy + px), fy);
+            let s = lerp(&y0, &y1, fz);
+            let rho = s[0];
             if rho > 0.0 {
-                let a = (-self.kappa * rho * dtf).exp();
+                let a = exp_neg(-self.kappa * rho * dt);
                 let wgt = g * (1.0 - a) / rho;
-                direct += wgt * rho_t;
-                match &self.ambient_field {
-                    Some(f) => {
-                        let mut ra = [0.0f32; 3];
-                        for c in 0..8 {
-                            let v = f[tl.idx[c]];
-                            for (r, x) in ra.iter_mut().zip(v) {
-                                *r += tl.w[c] * x;
-                            }
-                        }
-                        for (m, r) in amb.iter_mut().zip(ra) {
-                            *m += wgt * r;
-                        }
-                    }
-                    None => {
-                        for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
-                            *m += wgt * rho * u;
-                        }
-                    }
-                }
+                direct += wgt * s[1];
+                ambient(&s, wgt, &mut amb);
                 g *= a;
                 if g < MIN_TRANSMITTANCE {
                     break;
@@ -224,10 +423,7 @@ impl Prepared {
             }
             i += 1;
         }
-        out.direct = direct * self.phase(d);
-        out.ambient = amb;
-        out.transmittance = g;
-        out
+        (direct, amb, g)
     }
 
     /// Marches the ray through the centre of pixel (`x`, `y`) of a `width × height` view.
@@ -244,36 +440,6 @@ impl Prepared {
     }
 }
 
-/// Brick occupancy: a brick is occupied when any voxel within one voxel of it has ρ > 0.
-fn occupancy(volume: &Volume) -> (Vec<bool>, [usize; 3]) {
-    let d = volume.dims;
-    let nb = d.map(|n| n.div_ceil(BRICK));
-    let mut occ = vec![false; nb[0] * nb[1] * nb[2]];
-    for z in 0..d[2] {
-        for y in 0..d[1] {
-            let row = &volume.density[volume.index(0, y, z)..volume.index(0, y, z) + d[0]];
-            for (x, &r) in row.iter().enumerate() {
-                if r > 0.0 {
-                    // Mark every brick whose dilated range contains (x, y, z).
-                    let range = |c: usize, n: usize| {
-                        let lo = c.saturating_sub(1) / BRICK;
-                        let hi = ((c + 1) / BRICK).min(n - 1);
-                        lo..=hi
-                    };
-                    for bz in range(z, nb[2]) {
-                        for by in range(y, nb[1]) {
-                            for bx in range(x, nb[0]) {
-                                occ[bx + nb[0] * (by + nb[1] * bz)] = true;
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-    (occ, nb)
-}
-
 /// Renders the linear layers of `prepared` seen by `camera` at `width × height`.
 pub fn render_layers(
     prepared: &Prepared,
@@ -288,19 +454,26 @@ pub fn render_layers(
     let mut ambient = vec![[0f32; 3]; w * h];
     let mut alpha = vec![0f32; w * h];
     direct
-        .par_chunks_mut(w)
-        .zip(ambient.par_chunks_mut(w))
-        .zip(alpha.par_chunks_mut(w))
+        .par_chunks_mut(w * TILE)
+        .zip(ambient.par_chunks_mut(w * TILE))
+        .zip(alpha.par_chunks_mut(w * TILE))
         .enumerate()
-        .for_each(|(y, ((dr, ar), al))| {
+        .for_each(|(band, ((dr, ar), al))| {
             if ctl.is_canceled() {
                 return;
             }
-            for x in 0..w {
-                let s = prepared.march(rg.eye, rg.dir(x as f64 + 0.5, y as f64 + 0.5));
-                dr[x] = s.direct;
-                ar[x] = s.ambient;
-                al[x] = 1.0 - s.transmittance;
+            let rows = dr.len() / w;
+            for x0 in (0..w).step_by(TILE) {
+                for r in 0..rows {
+                    let y = band * TILE + r;
+                    for x in x0..(x0 + TILE).min(w) {
+                        let s = prepared.march(rg.eye, rg.dir(x as f64 + 0.5, y as f64 + 0.5));
+                        let i = r * w + x;
+                        dr[i] = s.direct;
+                        ar[i] = s.ambient;
+                        al[i] = 1.0 - s.transmittance;
+                    }
+                }
             }
         });
     ctl.checkpoint()?;
@@ -311,76 +484,4 @@ pub fn render_layers(
         ambient,
         alpha,
     })
-}
-
-/// Which terms of the layers an image shows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Show {
-    /// I_l·Ī + A: the render.
-    All,
-    /// I_l·Ī only.
-    Direct,
-    /// A only.
-    Ambient,
-}
-
-impl Layers {
-    /// Linear radiance I of pixel `i` (premultiplied by alpha: the cloud's own light).
-    #[inline]
-    pub fn radiance(&self, i: usize, sun: [f32; 3], show: Show) -> [f32; 3] {
-        let d = self.direct[i];
-        let a = self.ambient[i];
-        std::array::from_fn(|q| match show {
-            Show::All => sun[q] * d + a[q],
-            Show::Direct => sun[q] * d,
-            Show::Ambient => a[q],
-        })
-    }
-
-    /// The sRGB RGBA image: over `background` (opaque: `I + (1 − α)·bg`) when given, else
-    /// straight colour `I/α` with alpha α so that compositing over any sky gives `I + (1 − α)·sky`.
-    pub fn to_image(&self, sun: [f32; 3], background: Option<[u8; 3]>, show: Show) -> RgbaImage {
-        let bg = background.map(|b| b.map(srgb8_to_linear));
-        let mut data = vec![0u8; self.direct.len() * 4];
-        data.par_chunks_mut(4 * self.width as usize)
-            .enumerate()
-            .for_each(|(y, row)| {
-                for (x, px) in row.chunks_exact_mut(4).enumerate() {
-                    let i = y * self.width as usize + x;
-                    let c = self.radiance(i, sun, show);
-                    let a = self.alpha[i].clamp(0.0, 1.0);
-                    let out = match bg {
-                        Some(bg) => {
-                            let v: [f32; 3] = std::array::from_fn(|q| c[q] + (1.0 - a) * bg[q]);
-                            [
-                                linear_to_srgb8(v[0]),
-                                linear_to_srgb8(v[1]),
-                                linear_to_srgb8(v[2]),
-                                255,
-                            ]
-                        }
-                        None => {
-                            let alpha8 = (a * 255.0 + 0.5) as u8;
-                            if alpha8 == 0 {
-                                [0, 0, 0, 0]
-                            } else {
-                                let inv = 1.0 / a;
-                                [
-                                    linear_to_srgb8(c[0] * inv),
-                                    linear_to_srgb8(c[1] * inv),
-                                    linear_to_srgb8(c[2] * inv),
-                                    alpha8,
-                                ]
-                            }
-                        }
-                    };
-                    px.copy_from_slice(&out);
-                }
-            });
-        RgbaImage {
-            width: self.width,
-            height: self.height,
-            data,
-        }
-    }
 }

@@ -10,13 +10,16 @@
 //!   [`multigrid`]), sun direction by dragging a shadow (§3.3).
 
 pub mod edit;
+pub mod fastexp;
 pub mod grid;
+pub mod layers;
 pub mod light;
 pub mod march;
 pub mod multigrid;
 pub mod params;
 pub mod procedural;
 pub mod run;
+pub mod skip;
 pub mod state;
 
 pub use edit::{apply_edit, edit_outputs, edit_outputs_with, Edit, EditError, EditOutcome};

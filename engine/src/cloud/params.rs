@@ -28,9 +28,13 @@ pub enum Layer {
     Direct,
     /// `ambient.png`: A.
     Ambient,
+    /// `layers.bin`: the linear Ī, A and α of every pixel ([`super::layers`]), which a later
+    /// sun-colour edit at the same view reads instead of marching. Cloud scenes ask for it.
+    Linear,
 }
 
-/// Wire form of `layers`: `true` = both, `false` = none, or a list of names.
+/// Wire form of `layers`: `true` = both images (`direct`, `ambient`), `false` = none, or a
+/// list of names.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
 pub(crate) enum WireLayers {
@@ -100,7 +104,7 @@ pub struct Params {
     /// The rendering parameters (κ, sun, ambient, …), flattened at the top level.
     #[serde(flatten)]
     pub state: CloudState,
-    /// Extra layers to write (`direct.png`, `ambient.png`). Default none.
+    /// Extra layers to write (`direct.png`, `ambient.png`, `layers.bin`). Default none.
     pub layers: Vec<Layer>,
     /// World box `[[min], [max]]` of the volume; null = SPEC §3's default (unit cube scaled to
     /// the grid's aspect, base at Y = 0). Each min < max, finite.
@@ -136,7 +140,7 @@ impl Params {
             Some(WireLayers::All(true)) => vec![Layer::Direct, Layer::Ambient],
             Some(WireLayers::List(l)) => {
                 let mut out = vec![];
-                for x in [Layer::Direct, Layer::Ambient] {
+                for x in [Layer::Direct, Layer::Ambient, Layer::Linear] {
                     if l.contains(&x) {
                         out.push(x);
                     }

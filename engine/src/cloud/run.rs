@@ -1,8 +1,9 @@
 //! The one-shot `cloud` pipeline (SPEC §3): volume → sun transmittance sweep
-//! ([`super::light`]) → camera-ray march ([`super::march`]) → `render.png` (RGBA, sRGB),
-//! `state.json`, and `direct.png`/`ambient.png` on request.
+//! ([`super::light`], fused into [`Prepared::lit`]) → camera-ray march ([`super::march`]) → `render.png` (RGBA, sRGB),
+//! `state.json`, and `direct.png`/`ambient.png`/`layers.bin` on request.
 
-use super::light::SunLight;
+use super::edit::layers_bin;
+use super::layers::identity;
 use super::march::{render_layers, Layers, Prepared, Show};
 use super::params::{Layer, Params, View};
 use super::state::{AmbientField, CloudState};
@@ -20,9 +21,8 @@ pub fn render(
     ctl: &dyn Control,
 ) -> Result<Layers, Canceled> {
     ctl.progress("light", 0.0);
-    let light = SunLight::compute(volume, state.sun_direction, state.kappa, ctl)?;
+    let prepared = Prepared::lit(volume, state, ambient, ctl)?;
     ctl.progress("march", 0.3);
-    let prepared = Prepared::new(volume, &light, state, ambient);
     let camera = view.camera(volume.bounds);
     let layers = render_layers(&prepared, &camera, view.width, view.height, ctl)?;
     ctl.progress("encode", 0.95);
@@ -64,6 +64,11 @@ pub fn run(
         let (name, show) = match l {
             Layer::Direct => ("direct.png", Show::Direct),
             Layer::Ambient => ("ambient.png", Show::Ambient),
+            Layer::Linear => {
+                let id = identity(&params.view(), &params.state);
+                out.push(layers_bin(layers.to_bytes(&id)));
+                continue;
+            }
         };
         let img = layers.to_image(sun, None, show);
         out.push(Output::new(name, "image/png", encode_rgba(&img)));

@@ -36,7 +36,10 @@ pub struct CloudState {
     /// Background colour `#rrggbb` (sRGB) to composite over; `null` keeps transparent sky.
     /// Default null.
     pub background: Option<String>,
-    /// Ray-march step in voxels (of the smallest voxel edge), 0.1–4. Default 0.5.
+    /// Ray-march step in voxels (of the smallest voxel edge), 0.1–4. Default 1: one trilinear
+    /// sample per voxel crossed; against the brute-force integrator (test
+    /// `cloud::renderer_matches_a_brute_force_integrator`) it stays within 1 % RMS, and it
+    /// halves the samples of the former default 0.5.
     pub step: f64,
 }
 
@@ -50,7 +53,7 @@ impl Default for CloudState {
             ambient_scale: 1.0,
             anisotropy: 0.0,
             background: None,
-            step: 0.5,
+            step: 1.0,
         }
     }
 }

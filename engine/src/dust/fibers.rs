@@ -68,7 +68,8 @@ pub const NEIGHBOURS: [(i32, i32); 8] = [
 /// Parameters of the fibre textures (SPEC §4 step 3).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FiberParams {
-    /// `fibers`: fibres in the bottom shell's texture (the densest). Default: 20 000 at 1024².
+    /// `fibers`: fibres in the bottom shell's texture (the densest). Default: 5 000 (at 512²,
+    /// the pipeline's default texture size: ~2 fibre texels per 10 texels).
     pub fibers: u32,
     /// `fiber_length`: steps per fibre, ≥ 1. Default: 48.
     pub fiber_length: u32,
@@ -85,7 +86,7 @@ pub struct FiberParams {
 impl Default for FiberParams {
     fn default() -> Self {
         Self {
-            fibers: 20_000,
+            fibers: 5_000,
             fiber_length: 48,
             bends: 2,
             bend_angle_deg: 60.0,

@@ -8,10 +8,25 @@
 //! - [`shells`]: how thick it lies — layer heights and which texels each layer draws (§2.2).
 //! - [`fibers`]: the fibre textures drawn as the trails of moving points (§2.3).
 //!
-//! Not here yet (issue 6): the renderer, the glTF export, and the pipeline glue.
+//! And the pieces that turn them into pictures and files:
+//! - [`surface`]: the mesh with crease-split vertex normals, which D and the shells use.
+//! - [`mapping`]: how the textures lie on the mesh (its UVs rescaled, or tri-planar / box UVs).
+//! - [`texture`]: the shell textures as 8-bit mip pyramids for sampling.
+//! - [`render`]: the shells as lit, semi-transparent layers over the base mesh (§2.2, §3).
+//! - [`export`]: `fibers.png` (atlas) and `dusty.glb` (base + shell meshes).
+//! - [`run`]: the pipeline, mesh to outputs.
 
 pub mod amount;
+pub mod export;
 pub mod fibers;
+pub mod mapping;
 pub mod noise;
 pub mod params;
+pub mod render;
+pub mod run;
 pub mod shells;
+pub mod surface;
+pub mod texture;
+
+pub use params::Params;
+pub use run::run;

@@ -1,15 +1,26 @@
 //! Parameters of the `dust` pipeline (SPEC §4, §5): the wire form (JSON, unknown names rejected)
 //! and the validated form. The backticked names of SPEC §4 keep their names; the model's K, s and
 //! U, which the SPEC writes as symbols, are `stickiness`, `slipperiness` and `dust_source`.
-//! Every field says its unit, range and default. Not yet wired into the pipeline (issue 6).
+//! The view (size, camera, up axis, sun, fog, shadows) is the one `snow-cover` has
+//! ([`MeshView`]). Every field says its unit, range and default.
 
 use serde::{Deserialize, Serialize};
 
 use super::amount::AmountModel;
 use super::fibers::FiberParams;
-use crate::params::{camera_spec, image_size, range, CameraSpec, OrbitDefaults, WireCamera};
+use crate::mesh_view::{MeshView, MeshViewDefaults, UpAxisParam, WireMeshView};
+use crate::params::{parse_hex_color, range, WireCamera};
 use crate::pipeline::Limits;
+use crate::render::image::srgb8_to_linear;
 use crate::ParamError;
+
+/// Largest `shells` × `texture_size`²: the shell textures and their atlas hold ~5 bytes per texel
+/// (2^26 texels ≈ 0.35 GB), e.g. 32 shells of 1448², 128 of 724², 4 of 4096².
+pub const MAX_TEXELS: u64 = 1 << 26;
+
+/// Largest `fibers` × (`fiber_length` + 1): the trail buffer of one texture holds 16 bytes per
+/// trail texel (2^25 ≈ 0.5 GB), e.g. 680,000 fibres of 48 steps.
+pub const MAX_TRAIL: u64 = 1 << 25;
 
 /// Wire parameters (all optional; unknown names are rejected).
 #[derive(Debug, Default, Clone, Deserialize)]
@@ -19,6 +30,11 @@ pub struct WireParams {
     pub height: Option<u32>,
     pub camera: Option<WireCamera>,
     pub seed: Option<u64>,
+    pub up_axis: Option<UpAxisParam>,
+    pub sun_azimuth_deg: Option<f64>,
+    pub sun_elevation_deg: Option<f64>,
+    pub fog: Option<f32>,
+    pub shadows: Option<bool>,
     pub stickiness: Option<f32>,
     pub slipperiness: Option<f32>,
     pub dust_source: Option<[f32; 3]>,
@@ -29,23 +45,23 @@ pub struct WireParams {
     pub noise_scale: Option<f64>,
     pub noise_octaves: Option<usize>,
     pub texture_size: Option<u32>,
+    pub fiber_tile: Option<f32>,
     pub fibers: Option<u32>,
     pub fiber_length: Option<u32>,
     pub bends: Option<u32>,
     pub bend_angle_deg: Option<f32>,
     pub fiber_decay: Option<f32>,
     pub fiber_opacity: Option<f32>,
-    pub dust_color: Option<[f32; 3]>,
+    pub dust_color: Option<String>,
 }
 
 /// Validated parameters of one `dust` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Params {
-    /// Output image width, pixels, 16–8192. Default 960.
-    pub width: u32,
-    /// Output image height, pixels, 16–8192. Default 640.
-    pub height: u32,
-    pub camera: CameraSpec,
+    /// Output size, camera, up axis, sun, fog (default 0: dust is an indoor, close-up
+    /// phenomenon) and shadows, shared with `snow-cover`.
+    #[serde(flatten)]
+    pub view: MeshView,
     /// Seed of the noise and the fibres. Default 0.
     pub seed: u64,
     /// K, the dust's stickiness: D on a horizontal, fully exposed face, 0–4. Default 1.
@@ -69,9 +85,15 @@ pub struct Params {
     pub noise_scale: f64,
     /// fBm octaves, 1–12. Default 5.
     pub noise_octaves: usize,
-    /// Fibre texture side, texels, 64–4096. Default 1024.
+    /// Fibre texture side, texels, 64–4096. Default 512 (one tile covers `fiber_tile`; 512 keeps
+    /// a texel at most about a pixel in a close-up of a tenth of the object, and the 32 textures
+    /// of `fibers.png` and `dusty.glb` near 10 MB each).
     pub texture_size: u32,
-    /// Fibres in the bottom shell's texture, 0–1,000,000. Default 20,000 (at 1024²).
+    /// Surface covered by one fibre texture tile, metres, > 0; null = 1/8 of the mesh's
+    /// bounding-box diagonal (see [`super::mapping`]). Default null.
+    pub fiber_tile: Option<f32>,
+    /// Fibres in the bottom shell's texture, 0–1,000,000. Default 5,000 (at 512²; the issue's
+    /// benchmark case, 20,000 at 1024², has the same density).
     pub fibers: u32,
     /// Steps per fibre, 1–4096. Default 48.
     pub fiber_length: u32,
@@ -83,8 +105,9 @@ pub struct Params {
     pub fiber_decay: f32,
     /// Opacity of a fibre texel, 0–1. Default 0.35.
     pub fiber_opacity: f32,
-    /// Dust colour, linear RGB 0–1. Default `[0.62, 0.58, 0.52]` (grey-beige house dust).
-    pub dust_color: [f32; 3],
+    /// Dust colour, sRGB hex. Default `#e7e2da` (light grey-beige house dust; the fibres'
+    /// brightness darkens it, see [`super::render::DEPTH_SHADE`]).
+    pub dust_color: String,
 }
 
 fn unit3(field: &str, v: Option<[f32; 3]>, default: [f32; 3]) -> Result<[f32; 3], ParamError> {
@@ -101,14 +124,22 @@ impl Params {
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
         let w: WireParams = crate::pipeline::deserialize_params(v)?;
-        let (width, height) = image_size(w.width, w.height, (960, 640), limits)?;
-        let camera = camera_spec(
-            w.camera.clone().unwrap_or_default(),
-            OrbitDefaults {
-                azimuth_deg: 210.0,
-                elevation_deg: 35.0,
-                fov_deg: 40.0,
+        let view = MeshView::from_wire(
+            WireMeshView {
+                width: w.width,
+                height: w.height,
+                camera: w.camera.clone(),
+                up_axis: w.up_axis,
+                sun_azimuth_deg: w.sun_azimuth_deg,
+                sun_elevation_deg: w.sun_elevation_deg,
+                fog: w.fog,
+                shadows: w.shadows,
             },
+            MeshViewDefaults {
+                fog: 0.0,
+                ..MeshViewDefaults::default()
+            },
+            limits,
         )?;
         let max_thickness = match w.max_thickness {
             Some(t) => Some(range("max_thickness", Some(t), 0.01, 1e-6, 1e4)?),
@@ -122,26 +153,49 @@ impl Params {
                 format!("must be less than fiber_length ({fiber_length})"),
             ));
         }
-        let dust_color = w.dust_color.unwrap_or([0.62, 0.58, 0.52]);
-        for (i, c) in dust_color.iter().enumerate() {
-            range(&format!("dust_color[{i}]"), Some(*c), 0.0, 0.0, 1.0)?;
+        let dust_color = w.dust_color.clone().unwrap_or_else(|| "#e7e2da".into());
+        parse_hex_color("dust_color", &dust_color)?;
+        let shells = range("shells", w.shells, 32, 1, 128)?;
+        let texture_size = range("texture_size", w.texture_size, 512, 64, 4096)?;
+        let texels = u64::from(shells) * u64::from(texture_size) * u64::from(texture_size);
+        if texels > MAX_TEXELS {
+            return Err(ParamError::new(
+                "texture_size",
+                format!(
+                    "{shells} shells of {texture_size}² texels exceed the budget of {MAX_TEXELS} \
+                     texels; lower texture_size or shells"
+                ),
+            ));
         }
+        let fibers = range("fibers", w.fibers, 5_000, 0, 1_000_000)?;
+        if u64::from(fibers) * (u64::from(fiber_length) + 1) > MAX_TRAIL {
+            return Err(ParamError::new(
+                "fibers",
+                format!(
+                    "{fibers} fibres of {fiber_length} steps exceed the budget of {MAX_TRAIL} \
+                     trail texels per texture"
+                ),
+            ));
+        }
+        let fiber_tile = match w.fiber_tile {
+            Some(t) => Some(range("fiber_tile", Some(t), 1.0, 1e-6, 1e6)?),
+            None => None,
+        };
         Ok(Params {
-            width,
-            height,
-            camera,
+            view,
             seed: w.seed.unwrap_or(0),
             stickiness: range("stickiness", w.stickiness, 1.0, 0.0, 4.0)?,
             slipperiness: range("slipperiness", w.slipperiness, 2.0, 0.0, 64.0)?,
             dust_source: unit3("dust_source", w.dust_source, [0.0, 1.0, 0.0])?,
             exposure: w.exposure.unwrap_or(true),
             exposure_rays: range("exposure_rays", w.exposure_rays, 64, 1, 1024)?,
-            shells: range("shells", w.shells, 32, 1, 128)?,
+            shells,
             max_thickness,
             noise_scale: range("noise_scale", w.noise_scale, 4.0, 0.5, 256.0)?,
             noise_octaves: range("noise_octaves", w.noise_octaves, 5, 1, 12)?,
-            texture_size: range("texture_size", w.texture_size, 1024, 64, 4096)?,
-            fibers: range("fibers", w.fibers, 20_000, 0, 1_000_000)?,
+            texture_size,
+            fiber_tile,
+            fibers,
             fiber_length,
             bends,
             bend_angle_deg: range("bend_angle_deg", w.bend_angle_deg, 60.0, 0.0, 180.0)?,
@@ -160,6 +214,11 @@ impl Params {
             exposure: self.exposure,
             exposure_rays: self.exposure_rays,
         }
+    }
+
+    /// The dust colour, linear RGB (validated in [`Params::from_json`]; grey if it were not).
+    pub fn dust_color_linear(&self) -> [f32; 3] {
+        parse_hex_color("dust_color", &self.dust_color).map_or([0.5; 3], |c| c.map(srgb8_to_linear))
     }
 
     /// The fibre parameters (SPEC §4 step 3).
@@ -199,7 +258,12 @@ mod tests {
             (json!({"bends": 48}), "bends"),
             (json!({"fiber_opacity": 1.5}), "fiber_opacity"),
             (json!({"dust_source": [0, 0, 0]}), "dust_source"),
-            (json!({"dust_color": [0.5, 2, 0.5]}), "dust_color[1]"),
+            (json!({"dust_color": "#12345g"}), "dust_color"),
+            (json!({"dust_color": [0.5, 0.5, 0.5]}), "dust_color"),
+            (json!({"up_axis": "x"}), "up_axis"),
+            (json!({"fiber_tile": 0}), "fiber_tile"),
+            (json!({"texture_size": 4096, "shells": 8}), "texture_size"),
+            (json!({"fibers": 1_000_000, "fiber_length": 100}), "fibers"),
             (json!({"fibres": 3}), "fibres"),
         ] {
             let e = Params::from_json(&v, &l).unwrap_err();

@@ -52,3 +52,62 @@ pub fn layer_positions(
         })
         .collect()
 }
+
+/// Whether any texel of a triangle with corner amounts `d` can be drawn in layer `i` of
+/// `shells`: the noise is at most 1 and D is interpolated linearly, so only where the largest
+/// corner D reaches i / shells. The renderer and the glTF export draw layer i over these
+/// triangles only.
+#[inline]
+pub fn triangle_reaches(d: [f32; 3], i: u32, shells: u32) -> bool {
+    d[0].max(d[1]).max(d[2]) >= layer_fraction(i, shells) && i >= 1 && i <= shells
+}
+
+/// The part of the mesh that layer `i` (1-based) covers: the triangles that reach it
+/// ([`triangle_reaches`]) and only the vertices they use, renumbered in first-use order.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Layer {
+    /// Layer number, 1 = bottom.
+    pub index: u32,
+    /// Base-mesh vertex of each layer vertex.
+    pub vertices: Vec<u32>,
+    /// Triangles, indices into `vertices`.
+    pub triangles: Vec<[u32; 3]>,
+    /// Base-mesh triangle of each layer triangle.
+    pub source: Vec<u32>,
+}
+
+/// Builds layer `i` of `shells` over `triangles` with per-vertex `amount` (D). `remap` is
+/// scratch space of one entry per base vertex, all `u32::MAX` on entry and on return (so one
+/// buffer serves every layer without clearing). Allocates the layer. O(triangles).
+pub fn layer(
+    triangles: &[[u32; 3]],
+    amount: &[f32],
+    i: u32,
+    shells: u32,
+    remap: &mut [u32],
+) -> Layer {
+    let mut out = Layer {
+        index: i,
+        ..Layer::default()
+    };
+    for (t, tri) in triangles.iter().enumerate() {
+        let d = tri.map(|v| amount.get(v as usize).copied().unwrap_or(0.0));
+        if !triangle_reaches(d, i, shells) {
+            continue;
+        }
+        let local = tri.map(|v| {
+            let r = &mut remap[v as usize];
+            if *r == u32::MAX {
+                *r = out.vertices.len() as u32;
+                out.vertices.push(v);
+            }
+            *r
+        });
+        out.triangles.push(local);
+        out.source.push(t as u32);
+    }
+    for &v in &out.vertices {
+        remap[v as usize] = u32::MAX;
+    }
+    out
+}

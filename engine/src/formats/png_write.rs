@@ -20,9 +20,16 @@ pub fn encode_gray8(width: u32, height: u32, pixels: &[u8]) -> Vec<u8> {
     encode(width, height, png::ColorType::Grayscale, pixels)
 }
 
+/// Encode an 8-bit grey + alpha image (straight alpha; e.g. the dust's fibre textures), two
+/// bytes per pixel. Panics when `pixels.len() != 2·width·height`.
+pub fn encode_gray_alpha8(width: u32, height: u32, pixels: &[u8]) -> Vec<u8> {
+    encode(width, height, png::ColorType::GrayscaleAlpha, pixels)
+}
+
 fn encode(width: u32, height: u32, color: png::ColorType, data: &[u8]) -> Vec<u8> {
     let samples = match color {
         png::ColorType::Rgba => 4,
+        png::ColorType::GrayscaleAlpha => 2,
         _ => 1,
     };
     assert_eq!(

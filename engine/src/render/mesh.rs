@@ -18,6 +18,13 @@
 //! `shadow_map_size`. Rejected: ray-cast shadows against the triangles (needs a BVH; the map is
 //! one linear pass).
 //!
+//! **Reuse.** [`MeshRenderer`] holds a scene prepared for one view (merged instances, shadow map,
+//! rasteriser). Besides rendering it, it lights other surface points the same way
+//! ([`MeshRenderer::irradiance`], [`MeshRenderer::shade_point`]) and lends its projection and
+//! rasteriser to extra passes; an [`Overlay`] (premultiplied RGBA per pixel) is composited over
+//! every sample of its pixel — how the dust shells (SPEC §4 step 4) are drawn over the mesh.
+//! [`render_meshes`] is the one-shot form.
+//!
 //! **Anti-aliasing and determinism** are [`render_adaptive`]'s: bands of rows, fixed sample
 //! pattern, identical bytes for any thread count (the shadow map is a max per texel).
 //!
@@ -372,6 +379,279 @@ fn fill_triangle(t: &[[f64; 3]; 3], r0: usize, r1: usize, size: usize, rows: &mu
     }
 }
 
+/// The near-plane distance for viewing the box `lo`–`hi` from `eye`: just inside the box as
+/// seen from the eye (0.99 × the distance to it), at least 10⁻⁴ of its diagonal.
+pub fn near_plane(eye: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    let (mut near2, mut diag2) = (0.0, 0.0);
+    for (k, &e) in eye.iter().enumerate() {
+        let d = (lo[k] - e).max(e - hi[k]).max(0.0);
+        near2 += d * d;
+        let e = (hi[k] - lo[k]).max(0.0);
+        diag2 += e * e;
+    }
+    if diag2.is_finite() {
+        (0.99 * near2.sqrt()).max(1e-4 * diag2.sqrt()).max(1e-6)
+    } else {
+        1e-3
+    }
+}
+
+/// Premultiplied linear RGBA per pixel (row-major, `width × height`), composited *over* every
+/// sample of its pixel by [`MeshRenderer::render`]: translucent layers drawn on top of the
+/// opaque scene, such as the dust shells (SPEC §4 step 4). Values are 1/[`Overlay::SCALE`] units
+/// (u16: 8 bytes per pixel instead of 16, and steps far below one sRGB code).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Overlay {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<[u16; 4]>,
+}
+
+impl Overlay {
+    /// Fixed-point scale: 1.0 = 16384, so lit colours up to 4 fit.
+    pub const SCALE: f32 = 16384.0;
+
+    /// A transparent overlay.
+    pub fn new(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![[0; 4]; width as usize * height as usize],
+        }
+    }
+
+    /// Encodes premultiplied linear RGBA.
+    #[inline]
+    pub fn pack(c: [f32; 4]) -> [u16; 4] {
+        c.map(|v| (v.clamp(0.0, 65535.0 / Self::SCALE) * Self::SCALE + 0.5) as u16)
+    }
+
+    /// Decodes premultiplied linear RGBA.
+    #[inline]
+    pub fn unpack(v: [u16; 4]) -> [f32; 4] {
+        v.map(|x| f32::from(x) / Self::SCALE)
+    }
+}
+
+/// A scene prepared for one view: merged instances, shadow map, projection and rasteriser. Build
+/// it once, then [`MeshRenderer::render`] it, shade extra surface points with its lighting
+/// ([`MeshRenderer::shade_point`]), or rasterise more geometry with the same projection
+/// ([`MeshRenderer::projection`]).
+pub struct MeshRenderer<'a> {
+    scene: Scene,
+    shadow: Option<ShadowMap>,
+    light: &'a MeshLighting,
+    sun: [f32; 3],
+    sun_ok: bool,
+    eye: [f64; 3],
+    raster: Rasterizer,
+}
+
+impl<'a> MeshRenderer<'a> {
+    /// Merges `instances`, builds the shadow map (when `light.shadows`) and rasterises the scene
+    /// for `camera` at `width × height`. The near plane is [`near_plane`] of the scene's bounds,
+    /// widened to `extra_bounds` when given (geometry drawn later, such as shells above the
+    /// surface). Allocates the setup of the module doc.
+    pub fn new(
+        instances: &[MeshInstance],
+        camera: &Camera,
+        light: &'a MeshLighting,
+        width: u32,
+        height: u32,
+        extra_bounds: Option<([f64; 3], [f64; 3])>,
+        ctl: &dyn Control,
+    ) -> Result<Self, Canceled> {
+        ctl.checkpoint()?;
+        let scene = merge(instances);
+        let sun = normalize(light.sun_dir);
+        let sun_ok = sun.iter().all(|v| v.is_finite());
+        let shadow = if light.shadows && sun_ok && !scene.triangles.is_empty() {
+            Some(ShadowMap::build(&scene, sun, light.shadow_map_size, ctl)?)
+        } else {
+            None
+        };
+        let (mut lo, mut hi) = (scene.lo, scene.hi);
+        if let Some((elo, ehi)) = extra_bounds {
+            lo = [0, 1, 2].map(|k| lo[k].min(elo[k]));
+            hi = [0, 1, 2].map(|k| hi[k].max(ehi[k]));
+        }
+        let proj = Projection::new(camera, width, height, near_plane(camera.eye, lo, hi));
+        let raster = Rasterizer::new(
+            &RMesh {
+                positions: &scene.positions,
+                triangles: &scene.triangles,
+            },
+            &proj,
+        );
+        Ok(Self {
+            scene,
+            shadow,
+            light,
+            sun: sun.map(|v| v as f32),
+            sun_ok,
+            eye: camera.eye,
+            raster,
+        })
+    }
+
+    /// The projection every pass of this view uses.
+    pub fn projection(&self) -> &Projection {
+        self.raster.projection()
+    }
+
+    /// The scene's rasteriser (for depth passes against the opaque scene).
+    pub fn rasterizer(&self) -> &Rasterizer {
+        &self.raster
+    }
+
+    /// The light (linear RGB) a unit albedo at surface point `p` (world) with normal `n` (unit
+    /// or zero; flipped toward the eye) reflects: sun with shadows plus sky ambient, before fog.
+    #[inline]
+    pub fn irradiance(&self, p: [f64; 3], n: [f32; 3]) -> [f32; 3] {
+        let to_eye = sub(self.eye, p);
+        let mut n = n;
+        if f64::from(n[0]) * to_eye[0] + f64::from(n[1]) * to_eye[1] + f64::from(n[2]) * to_eye[2]
+            < 0.0
+        {
+            n = n.map(|v| -v);
+        }
+        self.irradiance_one_sided(p, n)
+    }
+
+    /// [`MeshRenderer::irradiance`] with `n` taken as it is (not flipped toward the eye): for
+    /// matter lying on the outside of a surface, such as dust, lit on the side it lies on even
+    /// where the surface turns away from the eye.
+    #[inline]
+    pub fn irradiance_one_sided(&self, p: [f64; 3], n: [f32; 3]) -> [f32; 3] {
+        let light = self.light;
+        let sun = self.sun;
+        let ndl = n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2];
+        let mut direct = 0.0f32;
+        if self.sun_ok && ndl > 0.0 {
+            direct = ndl;
+            if let Some(m) = &self.shadow {
+                direct *= m.visibility(p, f64::from(ndl));
+            }
+        }
+        let amb = light.ambient * (0.5 + 0.5 * n[1]);
+        [0, 1, 2].map(|k| light.sun_color[k] * direct + amb)
+    }
+
+    /// The share of a colour at `p` that survives the fog (1 without fog); the rest is
+    /// [`MeshRenderer::fog_color`].
+    #[inline]
+    pub fn fog_factor(&self, p: [f64; 3]) -> f32 {
+        if self.light.fog_density > 0.0 {
+            let to_eye = sub(self.eye, p);
+            let dist = dot(to_eye, to_eye).sqrt();
+            (-(f64::from(self.light.fog_density)) * dist).exp() as f32
+        } else {
+            1.0
+        }
+    }
+
+    /// The fog colour, linear RGB.
+    pub fn fog_color(&self) -> [f32; 3] {
+        self.light.fog_color
+    }
+
+    /// The lit colour (linear RGB) of a surface point `p` (world) with normal `n` (unit or
+    /// zero; flipped toward the eye) and `albedo`: sun with shadows, sky ambient and fog as in
+    /// the module doc.
+    #[inline]
+    pub fn shade_point(&self, p: [f64; 3], n: [f32; 3], albedo: [f32; 3]) -> [f32; 3] {
+        let e = self.irradiance(p, n);
+        let mut c = [0, 1, 2].map(|k| albedo[k] * e[k]);
+        if self.light.fog_density > 0.0 {
+            let fog = self.fog_factor(p);
+            for (v, fc) in c.iter_mut().zip(self.light.fog_color) {
+                *v = *v * fog + fc * (1.0 - fog);
+            }
+        }
+        c
+    }
+
+    /// Renders the scene into a `width × height` sRGB image (straight alpha) with `overlay`
+    /// (same size) composited over each sample. Progress goes to `ctl` under stage `"render"`,
+    /// mapped onto `frac.0..frac.1`.
+    pub fn render(
+        &self,
+        overlay: Option<&Overlay>,
+        ctl: &dyn Control,
+        frac: (f32, f32),
+    ) -> Result<RgbaImage, Canceled> {
+        let light = self.light;
+        let scene = &self.scene;
+        let proj = self.raster.projection();
+        let (pw, ph) = (proj.width as usize, proj.height as usize);
+        let overlay = overlay.filter(|o| o.width as usize == pw && o.height as usize == ph);
+        let h = f64::from(proj.height);
+        let sky = |y: f64| -> [f32; 3] {
+            let s = (1.0 - (y / h) as f32).clamp(0.0, 1.0);
+            let s = s * s.sqrt();
+            [0, 1, 2].map(|k| light.sky_horizon[k] + (light.sky_top[k] - light.sky_horizon[k]) * s)
+        };
+        let surface = |f: Option<&Fragment>, y: f64| -> Sample {
+            let Some(f) = f else {
+                return match light.background {
+                    Some(bg) => Sample {
+                        c: [bg[0], bg[1], bg[2]],
+                        a: bg[3].clamp(0.0, 1.0),
+                        t: f32::INFINITY,
+                    },
+                    None => Sample {
+                        c: sky(y),
+                        a: 1.0,
+                        t: f32::INFINITY,
+                    },
+                };
+            };
+            let t = f.triangle as usize;
+            let corners = scene.triangles[t].map(|i| scene.positions[i as usize]);
+            let p = [0, 1, 2].map(|k| {
+                f.bary[0] * corners[0][k] + f.bary[1] * corners[1][k] + f.bary[2] * corners[2][k]
+            });
+            let n = unit(f.interpolate(scene.normals[t]));
+            let albedo = f.interpolate(scene.albedo[t]);
+            Sample {
+                c: self.shade_point(p, n, albedo),
+                a: 1.0,
+                t: f.z as f32,
+            }
+        };
+        let shade = |f: Option<&Fragment>, x: f64, y: f64, row: usize| -> Sample {
+            let mut s = surface(f, y);
+            if let Some(o) = overlay {
+                let px = (x.max(0.0) as usize).min(pw - 1);
+                let [r, g, b, a] = Overlay::unpack(o.data[row.min(ph - 1) * pw + px]);
+                if a > 0.0 {
+                    // Premultiplied "over": the sample's colour is straight (coverage s.a).
+                    let cover = a + (1.0 - a) * s.a;
+                    if cover > 0.0 {
+                        let keep = (1.0 - a) * s.a;
+                        let inv = 1.0 / cover;
+                        s.c = [
+                            (r + keep * s.c[0]) * inv,
+                            (g + keep * s.c[1]) * inv,
+                            (b + keep * s.c[2]) * inv,
+                        ];
+                        s.a = cover;
+                    }
+                }
+            }
+            s
+        };
+        let bands = self.raster.bands().max(1);
+        let done = AtomicUsize::new(0);
+        let band_done = || {
+            let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+            let x = (k as f32 / bands as f32).min(1.0);
+            ctl.progress("render", frac.0 + (frac.1 - frac.0) * x);
+        };
+        render_adaptive(&self.raster, light.samples, &shade, ctl, &band_done)
+    }
+}
+
 /// Render `instances` from `camera` into a `width × height` sRGB image (straight alpha), with
 /// the shading, shadows, fog and background of `light` (see the module doc). Progress goes to
 /// `ctl` under stage `"render"`, mapped onto `frac.0..frac.1`. An empty scene renders the
@@ -385,101 +665,5 @@ pub fn render_meshes(
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
-    ctl.checkpoint()?;
-    let scene = merge(instances);
-    let sun = normalize(light.sun_dir);
-    let sun_ok = sun.iter().all(|v| v.is_finite());
-    let shadow = if light.shadows && sun_ok && !scene.triangles.is_empty() {
-        Some(ShadowMap::build(&scene, sun, light.shadow_map_size, ctl)?)
-    } else {
-        None
-    };
-    // Near plane just inside the scene's bounding box as seen from the eye.
-    let eye = camera.eye;
-    let (mut near2, mut diag2) = (0.0, 0.0);
-    for (k, &e) in eye.iter().enumerate() {
-        let d = (scene.lo[k] - e).max(e - scene.hi[k]).max(0.0);
-        near2 += d * d;
-        let e = (scene.hi[k] - scene.lo[k]).max(0.0);
-        diag2 += e * e;
-    }
-    let near = if diag2.is_finite() {
-        (0.99 * near2.sqrt()).max(1e-4 * diag2.sqrt()).max(1e-6)
-    } else {
-        1e-3
-    };
-    let proj = Projection::new(camera, width, height, near);
-    let raster = Rasterizer::new(
-        &RMesh {
-            positions: &scene.positions,
-            triangles: &scene.triangles,
-        },
-        &proj,
-    );
-    let h = f64::from(proj.height);
-    let sky = |y: f64| -> [f32; 3] {
-        let s = (1.0 - (y / h) as f32).clamp(0.0, 1.0);
-        let s = s * s.sqrt();
-        [0, 1, 2].map(|k| light.sky_horizon[k] + (light.sky_top[k] - light.sky_horizon[k]) * s)
-    };
-    let sun_f = sun.map(|v| v as f32);
-    let shade = |f: Option<&Fragment>, _x: f64, y: f64, _row: usize| -> Sample {
-        let Some(f) = f else {
-            return match light.background {
-                Some(bg) => Sample {
-                    c: [bg[0], bg[1], bg[2]],
-                    a: bg[3].clamp(0.0, 1.0),
-                    t: f32::INFINITY,
-                },
-                None => Sample {
-                    c: sky(y),
-                    a: 1.0,
-                    t: f32::INFINITY,
-                },
-            };
-        };
-        let t = f.triangle as usize;
-        let corners = scene.triangles[t].map(|i| scene.positions[i as usize]);
-        let p = [0, 1, 2].map(|k| {
-            f.bary[0] * corners[0][k] + f.bary[1] * corners[1][k] + f.bary[2] * corners[2][k]
-        });
-        let mut n = unit(f.interpolate(scene.normals[t]));
-        let to_eye = sub(eye, p);
-        let dist = dot(to_eye, to_eye).sqrt();
-        if f64::from(n[0]) * to_eye[0] + f64::from(n[1]) * to_eye[1] + f64::from(n[2]) * to_eye[2]
-            < 0.0
-        {
-            n = n.map(|v| -v);
-        }
-        let albedo = f.interpolate(scene.albedo[t]);
-        let ndl = n[0] * sun_f[0] + n[1] * sun_f[1] + n[2] * sun_f[2];
-        let mut direct = 0.0f32;
-        if sun_ok && ndl > 0.0 {
-            direct = ndl;
-            if let Some(m) = &shadow {
-                direct *= m.visibility(p, f64::from(ndl));
-            }
-        }
-        let amb = light.ambient * (0.5 + 0.5 * n[1]);
-        let mut c = [0, 1, 2].map(|k| albedo[k] * (light.sun_color[k] * direct + amb));
-        if light.fog_density > 0.0 {
-            let fog = (-(f64::from(light.fog_density)) * dist).exp() as f32;
-            for (v, fc) in c.iter_mut().zip(light.fog_color) {
-                *v = *v * fog + fc * (1.0 - fog);
-            }
-        }
-        Sample {
-            c,
-            a: 1.0,
-            t: f.z as f32,
-        }
-    };
-    let bands = raster.bands().max(1);
-    let done = AtomicUsize::new(0);
-    let band_done = || {
-        let k = done.fetch_add(1, Ordering::Relaxed) + 1;
-        let x = (k as f32 / bands as f32).min(1.0);
-        ctl.progress("render", frac.0 + (frac.1 - frac.0) * x);
-    };
-    render_adaptive(&raster, light.samples, &shade, ctl, &band_done)
+    MeshRenderer::new(instances, camera, light, width, height, None, ctl)?.render(None, ctl, frac)
 }

@@ -5,17 +5,11 @@ use serde::{Deserialize, Serialize};
 
 use super::probability::Wind;
 use super::snowfall::{ModelParams, Snowfall};
-use crate::params::{camera_spec, image_size, range, CameraSpec, OrbitDefaults, WireCamera};
+pub use crate::mesh_view::UpAxisParam;
+use crate::mesh_view::{MeshView, MeshViewDefaults, WireMeshView};
+use crate::params::{range, WireCamera};
 use crate::pipeline::Limits;
 use crate::ParamError;
-
-/// Up axis of the input for formats without one fixed by their spec (OBJ, STL, PLY).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum UpAxisParam {
-    Y,
-    Z,
-}
 
 /// Wire form of `wind`.
 #[derive(Debug, Clone, Deserialize)]
@@ -65,16 +59,12 @@ pub struct WireParams {
 /// Validated parameters of one `snow-cover` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Params {
-    /// Output image width, pixels, 16–8192. Default 960.
-    pub width: u32,
-    /// Output image height, pixels, 16–8192. Default 640.
-    pub height: u32,
-    pub camera: CameraSpec,
+    /// Output size, camera, up axis, sun, fog (default 0.6: the paper renders with fog) and
+    /// shadows, shared with `dust`.
+    #[serde(flatten)]
+    pub view: MeshView,
     /// Seed of the snowfall directions (and the flake texture). Default 0.
     pub seed: u64,
-    /// Up axis for OBJ/STL/PLY; glTF is Y-up by its spec unless this is given. Default: Z for
-    /// STL/PLY, Y for OBJ and glTF.
-    pub up_axis: Option<UpAxisParam>,
     /// Snow-map cells across the scene's longer horizontal side, 16–4096. Default 512 (paper
     /// 100–200).
     pub resolution: usize,
@@ -109,14 +99,6 @@ pub struct Params {
     pub max_edge_length: Option<f32>,
     /// Frames of `timelapse.png` (1 = no time-lapse), 1–120. Default 1.
     pub frames: usize,
-    /// Sun for shading, compass azimuth degrees. Default 150.
-    pub sun_azimuth_deg: f64,
-    /// Sun elevation, degrees, 1–90. Default 40.
-    pub sun_elevation_deg: f64,
-    /// Exponential fog density per scene diagonal, 0–10 (the paper renders with fog). Default 0.6.
-    pub fog: f32,
-    /// Cast shadows in the render. Default true.
-    pub shadows: bool,
 }
 
 /// Validated wind.
@@ -139,14 +121,19 @@ impl Params {
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
         let w: WireParams = crate::pipeline::deserialize_params(v)?;
-        let (width, height) = image_size(w.width, w.height, (960, 640), limits)?;
-        let camera = camera_spec(
-            w.camera.clone().unwrap_or_default(),
-            OrbitDefaults {
-                azimuth_deg: 210.0,
-                elevation_deg: 35.0,
-                fov_deg: 40.0,
+        let view = MeshView::from_wire(
+            WireMeshView {
+                width: w.width,
+                height: w.height,
+                camera: w.camera.clone(),
+                up_axis: w.up_axis,
+                sun_azimuth_deg: w.sun_azimuth_deg,
+                sun_elevation_deg: w.sun_elevation_deg,
+                fog: w.fog,
+                shadows: w.shadows,
             },
+            MeshViewDefaults::default(),
+            limits,
         )?;
         let wind = match &w.wind {
             Some(wd) => Some(WindParam {
@@ -187,11 +174,8 @@ impl Params {
             None => None,
         };
         Ok(Params {
-            width,
-            height,
-            camera,
+            view,
             seed: w.seed.unwrap_or(0),
-            up_axis: w.up_axis,
             resolution: range("resolution", w.resolution, 512, 16, 4096)?,
             directions: range("directions", w.directions, 32, 1, 256)?,
             spread_deg: range("spread_deg", w.spread_deg, 10.0, 0.0, 45.0)?,
@@ -212,10 +196,6 @@ impl Params {
             sparse_depth: range("sparse_depth", w.sparse_depth, 0.01, 0.0, 1.0)?,
             max_edge_length,
             frames: range("frames", w.frames, 1, 1, 120)?,
-            sun_azimuth_deg: range("sun_azimuth_deg", w.sun_azimuth_deg, 150.0, 0.0, 360.0)?,
-            sun_elevation_deg: range("sun_elevation_deg", w.sun_elevation_deg, 40.0, 1.0, 90.0)?,
-            fog: range("fog", w.fog, 0.6, 0.0, 10.0)?,
-            shadows: w.shadows.unwrap_or(true),
         })
     }
 

@@ -12,73 +12,30 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::params::{Params, UpAxisParam};
+use super::params::Params;
 use super::probability::main_direction;
 use super::shape::{displace, snow_meshes, SnowMesh, DEFAULT_MIN_DEPTH_M};
 use super::snowfall::simulate;
 use super::sparse::vertex_coverage;
-use crate::formats::mesh::{decode_mesh, sniff_mesh, MeshFormat, MeshOptions, UpAxis};
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
 use crate::pipeline::Limits;
 use crate::render::image::RgbaImage;
-use crate::render::mesh::{render_meshes, MeshColors, MeshInstance, MeshLighting};
-use crate::render::terrain::sun_direction;
+use crate::render::mesh::{render_meshes, MeshColors, MeshInstance};
 use crate::{Canceled, Control, InputError, NoControl, Output};
 
 /// Snow's albedo, linear RGB.
 const SNOW: [f32; 3] = [0.9, 0.92, 0.95];
 
-/// Decodes the scene. `up_axis` applies to OBJ/STL/PLY as the mesh readers define it; given
-/// explicitly it also applies to glTF (whose spec says Y-up), because real files exist whose
-/// content is Z-up inside a Y-up container (the Inventor scenes in `shared/data`).
+/// Decodes the scene (see [`crate::mesh_view::MeshView::decode`]).
 pub fn decode(
     bytes: &[u8],
     filename: Option<&str>,
     p: &Params,
     limits: &Limits,
 ) -> Result<Mesh, InputError> {
-    let up = p.up_axis.map(|u| match u {
-        UpAxisParam::Y => UpAxis::Y,
-        UpAxisParam::Z => UpAxis::Z,
-    });
-    let opts = MeshOptions {
-        max_triangles: limits.max_input_triangles,
-        max_vertices: limits.max_input_triangles.saturating_mul(3),
-        up_axis: up,
-    };
-    let mut mesh = decode_mesh(bytes, filename, &opts)?;
-    let gltf = matches!(
-        sniff_mesh(bytes, filename),
-        Some(MeshFormat::Gltf | MeshFormat::Glb)
-    );
-    if gltf && up == Some(UpAxis::Z) {
-        // Z-up → Y-up: (x, y, z) → (x, z, −y), a proper rotation (winding kept).
-        for v in mesh
-            .positions
-            .iter_mut()
-            .chain(mesh.normals.iter_mut().flatten())
-        {
-            *v = [v[0], v[2], -v[1]];
-        }
-    }
-    Ok(mesh)
-}
-
-fn lighting(p: &Params, mesh: &Mesh) -> MeshLighting {
-    let diag = mesh
-        .bounds()
-        .map(|(lo, hi)| (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt())
-        .unwrap_or(1.0)
-        .max(1e-3);
-    MeshLighting {
-        sun_dir: sun_direction(p.sun_azimuth_deg, p.sun_elevation_deg),
-        shadows: p.shadows,
-        // `fog` is per scene diagonal so the same value suits a table and a house.
-        fog_density: p.fog / diag,
-        ..MeshLighting::default()
-    }
+    p.view.decode(bytes, filename, limits)
 }
 
 fn render_scene(
@@ -102,16 +59,10 @@ fn render_scene(
         triangles: &s.triangles,
         colors: MeshColors::Uniform(SNOW),
     }));
-    let bounds = mesh
-        .bounds()
-        .map(|(lo, hi)| (lo.map(f64::from), hi.map(f64::from)));
-    let camera = p
-        .camera
-        .camera(bounds, f64::from(width) / f64::from(height));
     render_meshes(
         &instances,
-        &camera,
-        &lighting(p, mesh),
+        &p.view.camera_for(mesh, width, height),
+        &p.view.lighting(mesh),
         width,
         height,
         ctl,
@@ -141,7 +92,7 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let t_all = Instant::now();
     let model = p.model();
     // Time-lapse frames: rendered inside the simulation at the steps that end each 1/frames of it.
-    let (fw, fh) = ((p.width / 2).max(16), (p.height / 2).max(16));
+    let (fw, fh) = ((p.view.width / 2).max(16), (p.view.height / 2).max(16));
     let mut frames: Vec<RgbaImage> = Vec::new();
     let mut frame_ms = 0.0;
     let wanted = |step: usize| {
@@ -190,7 +141,15 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     ctl.checkpoint()?;
 
     let t0 = Instant::now();
-    let image = render_scene(mesh, &snow, p, p.width, p.height, ctl, (0.82, 0.95))?;
+    let image = render_scene(
+        mesh,
+        &snow,
+        p,
+        p.view.width,
+        p.view.height,
+        ctl,
+        (0.82, 0.95),
+    )?;
     timings.push(("render".into(), t0.elapsed().as_secs_f64() * 1e3));
 
     ctl.progress("encode", 0.95);

@@ -413,6 +413,18 @@ pub fn subdivide(
     max_len: f32,
     max_triangles: usize,
 ) {
+    subdivide_with(positions, triangles, max_len, max_triangles, |_, _| {});
+}
+
+/// [`subdivide`], calling `on_mid(a, b)` right after the midpoint of edge (a, b) is appended to
+/// `positions`, so callers can append the vertex's other attributes (normal, UV) in step.
+pub fn subdivide_with(
+    positions: &mut Vec<[f32; 3]>,
+    triangles: &mut Vec<[u32; 3]>,
+    max_len: f32,
+    max_triangles: usize,
+    mut on_mid: impl FnMut(u32, u32),
+) {
     let too_long = |p: &[[f32; 3]], a: u32, b: u32| {
         let d = sub(p[a as usize], p[b as usize]);
         dot(d, d) > max_len * max_len
@@ -444,6 +456,7 @@ pub fn subdivide(
                             0.5 * (pa[1] + pb[1]),
                             0.5 * (pa[2] + pb[2]),
                         ]);
+                        on_mid(a, b);
                         positions.len() as u32 - 1
                     });
                 }

@@ -98,7 +98,7 @@ fn clip_ref(v: &Volume, o: [f64; 3], d: [f64; 3]) -> Option<(f64, f64)> {
     (b > a).then_some((a, b))
 }
 
-/// Brute force: Riemann sums with fine steps, sun transmittance marched from every sample, no
+/// Brute force: midpoint sums with fine steps, sun transmittance marched from every sample, no
 /// precomputation. Returns the premultiplied linear radiance and alpha.
 fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) -> ([f64; 3], f64) {
     let Some((t0, t1)) = clip_ref(v, o, d) else {
@@ -111,7 +111,9 @@ fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) ->
         let p = [0, 1, 2].map(|k| o[k] + t * d[k]);
         let rho = trilinear_ref(v, p);
         if rho > 0.0 {
-            let g = (-s.kappa * tau).exp();
+            // View transmittance at the sample (the middle of its step): midpoint rule, so the
+            // reference's own error is O(dt²) also in dense media.
+            let g = (-s.kappa * (tau + 0.5 * rho * dt)).exp();
             // Sun transmittance: march toward the sun.
             let (_, ts) = clip_ref(v, p, s.sun_direction).unwrap_or((0.0, 0.0));
             let mut st = 0.0;
@@ -134,9 +136,62 @@ fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) ->
 
 #[test]
 fn renderer_matches_a_brute_force_integrator() {
+    // The default step (1 voxel) and a finer one, on a thin blob (κ = 2: alpha ≤ 0.2).
+    for step in [1.0, 0.5] {
+        let (rel, aerr) = brute_force_error(2.0, step);
+        eprintln!("step {step}: relative RMS {rel}, alpha error {aerr}");
+        assert!(rel < 0.01, "step {step}: relative RMS error {rel}");
+        assert!(aerr < 0.01, "step {step}: alpha error {aerr}");
+    }
+}
+
+/// The march step's own error: the default step (1 voxel) against the finest allowed (0.1) on a
+/// thin and a dense blob. (Against the brute force, the dense blob, κ = 30, differs by 3.4 %
+/// RMS at every step from 0.25 to 1: that is the sun transmittance precomputed at the voxel
+/// centres and interpolated, where it falls by e^−1.5 per voxel, not the march.)
+#[test]
+fn the_default_step_converges() {
+    let v = blob(20, 1.0);
+    let camera = Camera::orbit([0.0; 3], 30.0, 20.0, 4.5, 40.0);
+    for kappa in [2.0, 30.0] {
+        let render = |step: f64| {
+            let state = CloudState {
+                kappa,
+                step,
+                sun_direction: [0.48, 0.6, 0.64],
+                ..CloudState::default()
+            };
+            let light = SunLight::compute(&v, state.sun_direction, kappa, &NoControl).unwrap();
+            let prep = Prepared::new(&v, &light, &state, None);
+            render_layers(&prep, &camera, 40, 30, &NoControl).unwrap()
+        };
+        let (a, b) = (render(1.0), render(0.1));
+        let sun = CloudState::default().sun_color.map(|x| x as f32);
+        let (mut err2, mut ref2, mut aerr) = (0.0f64, 0.0f64, 0.0f32);
+        for i in 0..a.alpha.len() {
+            let (x, y) = (
+                a.radiance(i, sun, phenomena_engine::cloud::march::Show::All),
+                b.radiance(i, sun, phenomena_engine::cloud::march::Show::All),
+            );
+            for q in 0..3 {
+                err2 += f64::from(x[q] - y[q]).powi(2);
+                ref2 += f64::from(y[q]).powi(2);
+            }
+            aerr = aerr.max((a.alpha[i] - b.alpha[i]).abs());
+        }
+        let rel = (err2 / ref2).sqrt();
+        eprintln!("κ {kappa}: step 1 vs 0.1: relative RMS {rel}, alpha {aerr}");
+        assert!(rel < 0.005 && aerr < 0.005, "κ {kappa}: {rel}, {aerr}");
+    }
+}
+
+/// Relative RMS error of the radiance and largest alpha error of a 40×30 render of a 20³ blob
+/// against [`brute_force`].
+fn brute_force_error(kappa: f64, step: f64) -> (f64, f64) {
     let v = blob(20, 1.0);
     let state = CloudState {
-        kappa: 2.0,
+        kappa,
+        step,
         sun_direction: [0.48, 0.6, 0.64],
         ..CloudState::default()
     };
@@ -161,9 +216,7 @@ fn renderer_matches_a_brute_force_integrator() {
             aerr = aerr.max((f64::from(layers.alpha[i]) - a).abs());
         }
     }
-    let rel = (err2 / ref2).sqrt();
-    assert!(rel < 0.01, "relative RMS error {rel}");
-    assert!(aerr < 0.01, "alpha error {aerr}");
+    ((err2 / ref2).sqrt(), aerr)
 }
 
 #[test]
@@ -244,6 +297,58 @@ fn transmittance_sweep_matches_direct_marching() {
                 max.0 < max_tol && p95 < p95_tol && mean < mean_tol,
                 "{dir:?}: max {max:?}, p95 {p95}, mean {mean}"
             );
+        }
+    }
+}
+
+/// The render's fused preparation (sweep straight into the padded sources, empty rows
+/// skipped) gives the same layers as the transmittance grid followed by [`Prepared::new`], for
+/// a sun along each axis (each writes the slices in another layout), either sign, with and
+/// without an ambient field, on a non-cubic grid with density on its faces.
+#[test]
+fn fused_preparation_matches_the_two_steps() {
+    let dims = [21usize, 14, 17];
+    let mut d = vec![0f32; dims[0] * dims[1] * dims[2]];
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let p = [x, y, z].map(|c| c as f32);
+                let r = ((p[0] - 8.0).powi(2) + (p[1] - 6.0).powi(2) + (p[2] - 9.0).powi(2)).sqrt();
+                let v = (1.0 - r / 7.0).max(0.0) + if x == 20 && y > 6 { 0.3 } else { 0.0 };
+                d[x + dims[0] * (y + dims[1] * z)] = v;
+            }
+        }
+    }
+    let v = Volume::new(dims, d, ([-1.0, 0.0, -0.8], [1.0, 1.2, 0.9])).unwrap();
+    let field = phenomena_engine::cloud::AmbientField {
+        rgb: (0..v.len())
+            .map(|i| [0.1, (i % 7) as f32 * 0.1, 0.5])
+            .collect(),
+    };
+    let camera = Camera::orbit([0.0, 0.6, 0.0], 35.0, 25.0, 4.0, 40.0);
+    for sun in [
+        [0.9, 0.3, -0.3],
+        [-0.8, 0.2, 0.4],
+        [0.2, 0.9, 0.3],
+        [0.3, -0.8, -0.2],
+        [0.1, 0.4, 0.9],
+        [-0.3, 0.2, -0.9],
+    ] {
+        let n: f64 = sun.iter().map(|x: &f64| x * x).sum::<f64>().sqrt();
+        let state = CloudState {
+            kappa: 20.0,
+            sun_direction: sun.map(|x| x / n),
+            ..CloudState::default()
+        };
+        for amb in [None, Some(&field)] {
+            let light =
+                SunLight::compute(&v, state.sun_direction, state.kappa, &NoControl).unwrap();
+            let two = Prepared::new(&v, &light, &state, amb);
+            let fused = Prepared::lit(&v, &state, amb, &NoControl).unwrap();
+            let a = render_layers(&two, &camera, 48, 40, &NoControl).unwrap();
+            let b = render_layers(&fused, &camera, 48, 40, &NoControl).unwrap();
+            assert!(a.alpha.iter().any(|&x| x > 0.5), "the cloud is in view");
+            assert_eq!(a, b, "sun {sun:?}, field {}", amb.is_some());
         }
     }
 }

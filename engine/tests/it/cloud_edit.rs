@@ -371,7 +371,10 @@ fn ambient_pins_keep_their_colour_and_outputs_are_named() {
     }
     let outs = edit_outputs(&v, &out, &e, &NoControl).unwrap();
     let names: Vec<&str> = outs.iter().map(|o| o.name.as_str()).collect();
-    assert_eq!(names, ["state.json", "ambient.bin", "render.png"]);
+    assert_eq!(
+        names,
+        ["state.json", "ambient.bin", "render.png", "layers.bin"]
+    );
     let back = phenomena_engine::cloud::AmbientField::from_bytes(&outs[1].bytes, v.len()).unwrap();
     assert_eq!(&back, field);
 }
@@ -453,10 +456,12 @@ fn cumulus_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
     (v, light.transmittance, pins)
 }
 
-/// Measured rates (2 cores shared with other jobs): 32³ reaches 1e-6 in 12 iterations, 64³ in
-/// 16 — one V-cycle each, a mean cut of 2.4–3.2× per iteration. The target of ≥ 5× per
-/// V-cycle is NOT met (see the module doc of `cloud::multigrid` and BENCHMARKS.md); the
-/// assertions below are what the solver does achieve, not that target.
+/// The multigrid criterion on the cumulus problem: every iteration cuts the relative
+/// residual by at least 5× (mesh-independent: the same bound at 32³, 64³ and 128³) and the
+/// solve reaches 1e-6. An iteration is one preconditioned conjugate-gradient step, i.e. one
+/// multigrid cycle (see the module doc of `cloud::multigrid`); the residuals are those of the
+/// returned iterate, recomputed in f64. Measured: 7, 8 and 8 iterations, the smallest cut
+/// 6.2×, 5.2× and 5.2×.
 fn assert_multigrid_rate(n: usize, max_iterations: usize) {
     let (v, guide, pins) = cumulus_problem(n);
     let (_, stats) = propagate(v.dims, &guide, &pins, SolveOptions::default(), &NoControl).unwrap();
@@ -468,11 +473,11 @@ fn assert_multigrid_rate(n: usize, max_iterations: usize) {
         "{n}³: {} iterations",
         r.len() - 1
     );
-    // Never a stall: every iteration cuts the residual.
     for k in 1..r.len() {
         assert!(
-            r[k] < r[k - 1],
-            "{n}³ iteration {k}: {} → {}",
+            r[k] * 5.0 <= r[k - 1],
+            "{n}³ iteration {k} cut the residual only {:.2}×: {} → {}",
+            r[k - 1] / r[k],
             r[k - 1],
             r[k]
         );
@@ -481,19 +486,19 @@ fn assert_multigrid_rate(n: usize, max_iterations: usize) {
 
 #[test]
 fn multigrid_reaches_1e_6_32() {
-    assert_multigrid_rate(32, 14);
+    assert_multigrid_rate(32, 9);
 }
 
 #[test]
 fn multigrid_reaches_1e_6_64() {
-    assert_multigrid_rate(64, 18);
+    assert_multigrid_rate(64, 9);
 }
 
 /// `cargo test -p phenomena-engine --test it multigrid_reaches_1e_6_128 -- --ignored`
 #[test]
 #[ignore]
 fn multigrid_reaches_1e_6_128() {
-    assert_multigrid_rate(128, 24);
+    assert_multigrid_rate(128, 9);
 }
 
 #[test]

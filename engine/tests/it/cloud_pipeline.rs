@@ -132,3 +132,78 @@ fn an_edit_that_cannot_be_done_is_unprocessable_with_the_reason() {
     let again = Params::parse(PipelineKind::CloudEdit, &p.canonical(), &Limits::default()).unwrap();
     assert_eq!(again, p);
 }
+
+/// A sun-colour edit given the layers of the base version's render at its view (`layers.bin`)
+/// reads them instead of decoding the volume and marching, and gives the same version byte for
+/// byte; layers of another view are not used, and a corrupt blob is an input error.
+#[test]
+fn a_sun_colour_edit_reads_the_render_layers_and_gives_the_same_version() {
+    let bytes = ball();
+    let l = Limits::default();
+    let view =
+        json!({"width": 40, "height": 30, "camera": {"azimuth_deg": 30, "elevation_deg": 10}});
+    let base = json!({"kappa": 25, "background": "#203040"});
+    let render = |view: &serde_json::Value| {
+        let mut p = base.clone();
+        p.as_object_mut()
+            .unwrap()
+            .extend(view.as_object().unwrap().clone());
+        p["layers"] = json!(["linear"]);
+        let job = decode(PipelineKind::Cloud, p, &bytes, &[]);
+        let out = pipeline::run(&job, &NoControl).unwrap();
+        let names: Vec<&str> = out.iter().map(|o| o.name.as_str()).collect();
+        assert_eq!(names, ["render.png", "state.json", "layers.bin"]);
+        out[2].bytes.clone()
+    };
+    let blob = render(&view);
+    let mut edit = view.clone();
+    edit["strokes"] = json!([
+        {"color": "#ff8040", "pixels": [[20, 15], [21, 15], [19, 16]]},
+        {"color": "#ffffff", "pixels": [[22, 14]]}
+    ]);
+    let params = json!({"kind": "sun-color", "base": base, "edit": edit});
+    let aux = |b: Vec<u8>| vec![(pipeline::LAYERS.to_string(), b)];
+    let job = decode(
+        PipelineKind::CloudEdit,
+        params.clone(),
+        &bytes,
+        &aux(blob.clone()),
+    );
+    assert!(
+        matches!(job, Job::CloudRecolor { .. }),
+        "the layers must be used"
+    );
+    let cached = pipeline::run(&job, &NoControl).unwrap();
+    let job = decode(PipelineKind::CloudEdit, params.clone(), &bytes, &[]);
+    assert!(matches!(job, Job::CloudEdit { .. }));
+    let marched = pipeline::run(&job, &NoControl).unwrap();
+    let names: Vec<&str> = marched.iter().map(|o| o.name.as_str()).collect();
+    assert_eq!(names, ["state.json", "render.png", "layers.bin"]);
+    let named = |o: &[phenomena_engine::Output]| -> Vec<(String, Vec<u8>)> {
+        o.iter()
+            .map(|o| (o.name.clone(), o.bytes.clone()))
+            .collect()
+    };
+    assert_eq!(named(&cached), named(&marched));
+    assert_eq!(
+        marched[2].bytes, blob,
+        "the new version's layers are the base's"
+    );
+    let state: CloudState = serde_json::from_slice(&marched[0].bytes).unwrap();
+    assert_ne!(state.sun_color, CloudState::default().sun_color);
+
+    // Layers of another camera: marched instead, same result.
+    let other = render(
+        &json!({"width": 40, "height": 30, "camera": {"azimuth_deg": 31, "elevation_deg": 10}}),
+    );
+    let job = decode(PipelineKind::CloudEdit, params.clone(), &bytes, &aux(other));
+    assert!(matches!(job, Job::CloudEdit { .. }));
+    assert_eq!(
+        named(&pipeline::run(&job, &NoControl).unwrap()),
+        named(&marched)
+    );
+
+    let p = Params::parse(PipelineKind::CloudEdit, &params, &l).unwrap();
+    let corrupt = aux(blob[..blob.len() - 3].to_vec());
+    assert!(pipeline::decode_with_aux(p, &bytes, Some("b.npy"), &corrupt, &l).is_err());
+}

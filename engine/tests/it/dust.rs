@@ -1,6 +1,7 @@
 //! Dust (SPEC §4): the dust-amount properties of step 1, the tileable Perlin fBm, and the fibre
 //! walks and textures of step 3 (allowed neighbours, length, bends, wrapping, decreasing counts per
-//! shell, an independent serial re-composite, determinism across thread counts, a golden texture).
+//! shell, an independent serial re-composite, determinism across thread counts, a golden texture);
+//! the coarse noise field, the crease split, the texture mapping and the mip pyramid.
 
 use phenomena_engine::dust::amount::{
     directional, dust_amount, hemisphere_directions, vertex_normals, AmountModel,
@@ -9,7 +10,10 @@ use phenomena_engine::dust::fibers::{
     fiber_texture, fiber_walk, motion_map, shell_fiber_count, shell_textures, FiberParams,
     NEIGHBOURS,
 };
+use phenomena_engine::dust::mapping::{box_uvs, triplanar, Mapping};
 use phenomena_engine::dust::noise::TileableNoise;
+use phenomena_engine::dust::surface::{crease_split, refine};
+use phenomena_engine::dust::texture::ShellTexture;
 use phenomena_engine::geom::mesh::Mesh;
 use phenomena_engine::render::image::RgbaImage;
 
@@ -41,7 +45,7 @@ fn tilted_square(theta: f32) -> Mesh {
 
 /// A grid floor over [−2, 2]² at y = 0 (spacing 0.2, normal up) and an axis-aligned unit-high box
 /// [−0.5, 0.5] × [0, 1] × [−0.5, 0.5] with its own vertices per face (normals outward).
-fn box_on_floor() -> Mesh {
+pub(crate) fn box_on_floor() -> Mesh {
     let mut m = Mesh::default();
     let n = 20;
     for i in 0..n {
@@ -614,5 +618,273 @@ fn timings() {
         "dust amount with exposure, {} vertices, {} triangles, 64 rays: {t_exp:.0} ms",
         m.positions.len(),
         m.triangles.len()
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// The noise field on a coarse grid, the surface, the mapping and the texture pyramid
+
+#[test]
+fn the_coarse_noise_field_matches_direct_evaluation() {
+    // 512² at scale 4 with 5 octaves: a 256² grid, interpolated.
+    let n = TileableNoise::new(5, 4.0, 5);
+    let t = n.texture(512, 512);
+    let (mut worst, mut sum, mut count) = (0.0f32, 0.0f32, 0);
+    for y in (0..512).step_by(7) {
+        for x in (0..512).step_by(5) {
+            let direct = n.sample((x as f64 + 0.5) / 512.0, (y as f64 + 0.5) / 512.0);
+            let d = (t[y * 512 + x] - direct).abs();
+            worst = worst.max(d);
+            sum += d;
+            count += 1;
+        }
+    }
+    let mean = sum / count as f32;
+    assert!(worst < 0.03 && mean < 0.005, "worst {worst}, mean {mean}");
+    // Where the grid would be as fine as the texture, it is the direct evaluation exactly.
+    let small = n.texture(64, 64);
+    assert_eq!(small[10 * 64 + 3], n.sample(3.5 / 64.0, 10.5 / 64.0));
+}
+
+/// A unit cube with 8 shared corners (no normals), counter-clockwise from outside.
+fn shared_cube() -> Mesh {
+    let mut m = Mesh::default();
+    for i in 0..8u32 {
+        m.positions
+            .push([(i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32]);
+    }
+    // (x, y, z) bit order: 1 = x, 2 = y, 4 = z.
+    for q in [
+        [0u32, 2, 3, 1], // z = 0, normal −z
+        [4, 5, 7, 6],    // z = 1, +z
+        [0, 1, 5, 4],    // y = 0, −y
+        [2, 6, 7, 3],    // y = 1, +y
+        [0, 4, 6, 2],    // x = 0, −x
+        [1, 3, 7, 5],    // x = 1, +x
+    ] {
+        m.triangles.push([q[0], q[1], q[2]]);
+        m.triangles.push([q[0], q[2], q[3]]);
+    }
+    m
+}
+
+#[test]
+fn creases_split_vertices_and_smooth_surfaces_keep_them() {
+    let cube = shared_cube();
+    let (m, n) = crease_split(&cube, [0.0, 1.0, 0.0]);
+    assert_eq!(m.positions.len(), 24, "each corner once per face");
+    for (t, tri) in m.triangles.iter().enumerate() {
+        let f = cube.face_normal(t);
+        let l = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        for (c, &v) in tri.iter().enumerate() {
+            for k in 0..3 {
+                assert!((n[v as usize][k] - f[k] / l).abs() < 1e-6);
+            }
+            // Same place as the corner it was split from.
+            let orig = cube.triangles[t][c] as usize;
+            assert_eq!(m.positions[v as usize], cube.positions[orig]);
+        }
+    }
+    // The top's D is exactly K (its corners' normals are the top's own, not 45° off).
+    let d = dust_amount(&m, &model(1.0, 2.0));
+    for (v, p) in m.positions.iter().enumerate() {
+        if p[1] == 1.0 && n[v][1] > 0.5 {
+            assert!((d[v] - 1.0).abs() < 1e-6, "top corner D = {}", d[v]);
+        }
+    }
+    // A floor wound facing down (as in the Inventor scenes) is a sheet: dust lies on its upper
+    // side. A closed piece wound inside out is turned back; its underside stays dust-free.
+    let up = [0.0, 1.0, 0.0];
+    let (_, n) = crease_split(&tilted_square(std::f32::consts::PI), up);
+    assert!(n.iter().all(|v| (v[1] - 1.0).abs() < 1e-5), "{n:?}");
+    let mut inside_out = shared_cube();
+    for t in &mut inside_out.triangles {
+        t.swap(1, 2);
+    }
+    let (m, n) = crease_split(&inside_out, up);
+    for (p, v) in m.positions.iter().zip(&n) {
+        if v[1].abs() > 0.5 {
+            assert_eq!(v[1] > 0.0, p[1] == 1.0, "{p:?} {v:?}");
+        }
+    }
+    // An open cylinder of 36 facets (10° apart) is one smooth surface: no vertex is split, and
+    // the normals point away from the axis.
+    let mut cyl = Mesh::default();
+    for i in 0..36 {
+        let a = (i as f32 * 10.0).to_radians();
+        cyl.positions.push([a.cos(), 0.0, a.sin()]);
+        cyl.positions.push([a.cos(), 1.0, a.sin()]);
+    }
+    for i in 0..36u32 {
+        let (b0, t0, b1, t1) = (2 * i, 2 * i + 1, (2 * i + 2) % 72, (2 * i + 3) % 72);
+        cyl.triangles.push([b0, t0, t1]);
+        cyl.triangles.push([b0, t1, b1]);
+    }
+    let (m, n) = crease_split(&cyl, [0.0, 1.0, 0.0]);
+    assert_eq!(m.positions.len(), 72);
+    for (p, nv) in m.positions.iter().zip(&n) {
+        let radial = p[0] * nv[0] + p[2] * nv[2];
+        assert!(radial.abs() > 0.999 && nv[1].abs() < 1e-5, "{p:?} {nv:?}");
+    }
+}
+
+#[test]
+fn mapping_rescales_uvs_and_blends_three_planes() {
+    // A 2 m square with UVs 0–1: 2 m per UV unit; tiles of 0.5 m → UVs × 4.
+    let mut sq = tilted_square(0.0);
+    for p in &mut sq.positions {
+        *p = p.map(|c| c * 2.0);
+    }
+    sq.uvs = Some(vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]);
+    match Mapping::new(&sq, 0.5) {
+        Mapping::Uv { uvs } => {
+            assert!((uvs[2][0] - 4.0).abs() < 1e-4 && (uvs[2][1] - 4.0).abs() < 1e-4);
+        }
+        m => panic!("expected UV mapping, got {m:?}"),
+    }
+    // Collapsed UVs carry no texture: tri-planar.
+    sq.uvs = Some(vec![[0.5, 0.5]; 4]);
+    assert!(matches!(Mapping::new(&sq, 0.5), Mapping::Triplanar { .. }));
+    // Tri-planar: weights sum to 1; an axis-aligned normal takes its own plane alone.
+    let l = triplanar([0.3, 0.7, 0.1], [0.0, 1.0, 0.0]);
+    assert_eq!(l.count, 1);
+    assert_eq!(l.st[0], [0.3, 0.1]);
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let l = triplanar([0.3, 0.7, 0.1], [s, s, 0.0]);
+    assert_eq!(l.count, 2);
+    assert!((l.weight[0] - 0.5).abs() < 1e-6 && (l.weight[1] - 0.5).abs() < 1e-6);
+    // Box UVs: every cube corner is split once per face plane (3 planes × 8 corners).
+    let cube = shared_cube();
+    let (src, uvs, tris) = box_uvs(&cube.positions, &cube.triangles, [0.0; 3], 1.0);
+    assert_eq!(src.len(), 24);
+    assert_eq!(uvs.len(), 24);
+    assert_eq!(tris.len(), 12);
+    for (t, tri) in tris.iter().enumerate() {
+        for (c, &v) in tri.iter().enumerate() {
+            assert_eq!(src[v as usize], cube.triangles[t][c]);
+        }
+    }
+}
+
+#[test]
+fn the_mip_pyramid_keeps_the_mean_and_sampling_wraps() {
+    let p = FiberParams {
+        fibers: 800,
+        ..params()
+    };
+    let noise = TileableNoise::new(4, 4.0, 4).texture(96, 96);
+    let tex = fiber_texture(&p, &noise, 96, 96, 1, 0, p.fibers);
+    let st = ShellTexture::new(&tex);
+    // 96 → 48 → 24 → 12 → 6 → 3 → 2 → 1.
+    assert_eq!(st.levels(), 8);
+    let mean = tex.alpha.iter().sum::<f32>() / tex.alpha.len() as f32;
+    let (_, top) = st.sample(0.3, 0.6, 7.0);
+    // Rounding per level and the odd sizes' wrapped pairs: within 2 %.
+    assert!(
+        (top - mean).abs() < 0.02 + 0.02 * mean,
+        "top {top}, mean {mean}"
+    );
+    // At a texel centre of level 0, the sample is the texel (quantised to 8 bits).
+    let (x, y) = (17usize, 40usize);
+    let (l, a) = st.sample((x as f32 + 0.5) / 96.0, (y as f32 + 0.5) / 96.0, 0.0);
+    assert!((a - tex.alpha[y * 96 + x]).abs() <= 0.5 / 255.0 + 1e-6);
+    assert!((l - tex.luminance[y * 96 + x]).abs() <= 0.5 / 255.0 + 1e-6);
+    // Period 1 in both coordinates, at every level.
+    for level in [0.0, 1.5, 3.0] {
+        let a = st.sample(0.123, 0.877, level);
+        let b = st.sample(2.123, -1.123, level);
+        assert!((a.0 - b.0).abs() < 1e-4 && (a.1 - b.1).abs() < 1e-4);
+    }
+}
+
+#[test]
+fn refining_splits_long_edges_and_lets_d_vary_under_an_overhang() {
+    // A 4 m floor of two triangles with a 1 m roof slab above its middle: unrefined, the floor
+    // has D at its 4 open corners only; refined, the floor under the roof gets less.
+    let mut m = Mesh::default();
+    push_quad(
+        &mut m,
+        [
+            [-2.0, 0.0, -2.0],
+            [-2.0, 0.0, 2.0],
+            [2.0, 0.0, 2.0],
+            [2.0, 0.0, -2.0],
+        ],
+    );
+    push_quad(
+        &mut m,
+        [
+            [-0.5, 0.3, -0.5],
+            [-0.5, 0.3, 0.5],
+            [0.5, 0.3, 0.5],
+            [0.5, 0.3, -0.5],
+        ],
+    );
+    m.uvs = Some([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]].repeat(2));
+    m.parts = vec![
+        phenomena_engine::geom::mesh::MeshPart {
+            name: "floor".into(),
+            first_triangle: 0,
+            triangle_count: 2,
+            base_color: [0.5, 0.5, 0.5, 1.0],
+        },
+        phenomena_engine::geom::mesh::MeshPart {
+            name: "roof".into(),
+            first_triangle: 2,
+            triangle_count: 2,
+            base_color: [0.5, 0.5, 0.5, 1.0],
+        },
+    ];
+    let (mut r, mut n) = crease_split(&m, [0.0, 1.0, 0.0]);
+    refine(&mut r, &mut n);
+    let (lo, hi) = r.bounds().unwrap();
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+    for t in &r.triangles {
+        for e in 0..3 {
+            let (a, b) = (
+                r.positions[t[e] as usize],
+                r.positions[t[(e + 1) % 3] as usize],
+            );
+            let l = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt();
+            assert!(l <= diag / 48.0 + 1e-5, "edge {l}");
+        }
+    }
+    assert_eq!(n.len(), r.positions.len());
+    assert_eq!(r.uvs.as_ref().unwrap().len(), r.positions.len());
+    // UVs interpolate: a floor vertex at (x, z) has uv ((x + 2)/4, (z + 2)/4); check the one
+    // made at the floor's centre (the midpoint of its diagonal).
+    let uv = r.uvs.as_ref().unwrap();
+    let k = r
+        .positions
+        .iter()
+        .position(|p| p[1] == 0.0 && (p[0] - 0.0).abs() < 1e-6 && (p[2] - 0.0).abs() < 1e-6)
+        .expect("a vertex at the floor's centre");
+    assert!((uv[k][0] - 0.5).abs() < 1e-6 && (uv[k][1] - 0.5).abs() < 1e-6);
+    let d = dust_amount(&r, &model(1.0, 2.0));
+    let at = |x: f32, z: f32| {
+        let i = r
+            .positions
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p[1] == 0.0)
+            .min_by(|a, b| {
+                let da = (a.1[0] - x).powi(2) + (a.1[2] - z).powi(2);
+                let db = (b.1[0] - x).powi(2) + (b.1[2] - z).powi(2);
+                da.total_cmp(&db)
+            })
+            .unwrap()
+            .0;
+        d[i]
+    };
+    assert!(
+        at(0.0, 0.0) < 0.5 * at(-1.9, -1.9),
+        "under {} open {}",
+        at(0.0, 0.0),
+        at(-1.9, -1.9)
+    );
+    // Parts still tile the triangles.
+    assert_eq!(
+        r.parts.iter().map(|p| p.triangle_count).sum::<usize>(),
+        r.triangles.len()
     );
 }

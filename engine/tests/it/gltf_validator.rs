@@ -51,7 +51,7 @@ pub fn validate_glb(name: &str, glb: &[u8]) -> Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-fn assert_valid(name: &str, glb: &[u8]) {
+pub(crate) fn assert_valid(name: &str, glb: &[u8]) {
     let report = validate_glb(name, glb);
     let errors = report["issues"]["numErrors"].as_u64().unwrap();
     assert_eq!(

@@ -7,6 +7,7 @@ mod cloud_edit;
 mod cloud_pipeline;
 mod descriptor;
 mod dust;
+mod dust_pipeline;
 mod formats;
 mod gltf_validator;
 mod golden;

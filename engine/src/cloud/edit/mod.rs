@@ -15,6 +15,7 @@ pub mod sun_direction;
 
 use serde::Deserialize;
 
+use super::layers::{identity, Layers, LAYERS_FILE};
 use super::light::SunLight;
 use super::params::View;
 use super::run::{render, render_png, state_json};
@@ -274,10 +275,8 @@ pub fn apply_edit(
     }
     match edit {
         Edit::SunColor(e) => {
-            ctl.progress("light", 0.0);
-            let light = SunLight::compute(volume, base.sun_direction, base.kappa, ctl)?;
-            ctl.progress("sun-color", 0.5);
-            let sun = sun_color::estimate(volume, &light, base, ambient, e)?;
+            ctl.progress("sun-color", 0.0);
+            let sun = sun_color::estimate(volume, base, ambient, e, ctl)?;
             Ok(EditOutcome {
                 state: CloudState {
                     sun_color: sun,
@@ -312,8 +311,9 @@ pub fn apply_edit(
     }
 }
 
-/// The new version's outputs: `state.json`, `ambient.bin` (when the edit made a new field) and
-/// `render.png` at the edit's view. The render uses the outcome's field only; when the edit kept
+/// The new version's outputs: `state.json`, `ambient.bin` (when the edit made a new field),
+/// `render.png` at the edit's view and its linear layers `layers.bin` (for a later sun-colour
+/// edit at that view, [`recolor`]). The render uses the outcome's field only; when the edit kept
 /// the base version's field (sun colour, sun direction) call [`edit_outputs_with`] and pass it,
 /// or the render shows uniform ambient.
 pub fn edit_outputs(
@@ -345,5 +345,40 @@ pub fn edit_outputs_with(
         ));
     }
     out.push(render_png(&layers, &outcome.state));
+    let id = identity(edit.view(), &outcome.state);
+    out.push(layers_bin(layers.to_bytes(&id)));
     Ok(out)
+}
+
+/// The sun-colour edit from the layers of the base version's render at the edit's view
+/// (`layers` as read from `blob`, whose identity the caller checked against
+/// [`identity`]`(edit view, base)`): the least-squares sun colour from the painted pixels'
+/// stored Ī and A, and the new version's render is the same layers with the new sun — nothing
+/// is marched. The outputs are those [`apply_edit`] and [`edit_outputs_with`] give (the same
+/// bytes: the blob is lossless), `layers.bin` being `blob` itself (the layers do not depend on
+/// the sun colour).
+pub fn recolor(
+    base: &CloudState,
+    edit: &SunColorEdit,
+    layers: &Layers,
+    blob: &[u8],
+    ctl: &dyn Control,
+) -> Result<Vec<Output>, EditError> {
+    ctl.progress("recolor", 0.0);
+    let state = CloudState {
+        sun_color: sun_color::estimate_from_layers(layers, base, edit)?,
+        ..base.clone()
+    };
+    ctl.checkpoint()?;
+    ctl.progress("encode", 0.5);
+    Ok(vec![
+        state_json(&state),
+        render_png(layers, &state),
+        layers_bin(blob.to_vec()),
+    ])
+}
+
+/// The `layers.bin` output.
+pub(crate) fn layers_bin(bytes: Vec<u8>) -> Output {
+    Output::new(LAYERS_FILE, "application/octet-stream", bytes)
 }

@@ -3,7 +3,9 @@
 //! The user paints pixels k with colours I_user(k) on a render. The cloud's radiance is linear in
 //! the sun colour, I(k,λ) = I_l(λ)·Ī(k) + A(k,λ), so the least-squares sun colour is
 //! `I_l(λ) = Σ_k Ī(k)(I_target(k,λ) − A(k,λ)) / Σ_k Ī(k)²` — the paper's Eq. 6 when there is one
-//! colour and no ambient. Only the painted pixels' rays are marched.
+//! colour and no ambient. Only the painted pixels' rays are marched — or, when the render of
+//! the base version at the edit's view exists, its layers (`layers.bin`,
+//! [`crate::cloud::layers`]) are read and nothing is marched.
 //!
 //! Reading chosen for alpha and background: the user paints the colour they *see*. With a
 //! `background` the displayed colour is `I + (1 − α)·bg`, so the target for I is
@@ -16,11 +18,12 @@
 use rayon::prelude::*;
 
 use super::{EditError, SunColorEdit};
-use crate::cloud::light::SunLight;
+use crate::cloud::layers::Layers;
 use crate::cloud::march::{PixelSample, Prepared};
 use crate::cloud::state::{AmbientField, CloudState};
 use crate::geom::Volume;
 use crate::render::image::srgb8_to_linear;
+use crate::Control;
 
 /// The painted samples' marches, in stroke order: (colour, Ī, A, α).
 pub fn painted_samples(
@@ -39,6 +42,26 @@ pub fn painted_samples(
         .map(|(c, p)| {
             let d = rg.dir(f64::from(p[0]) + 0.5, f64::from(p[1]) + 0.5);
             (*c, prepared.march(rg.eye, d))
+        })
+        .collect()
+}
+
+/// The painted samples read from the layers of a render at the edit's view (the cached path:
+/// no march), in stroke order as [`painted_samples`] gives them. The layers must be
+/// `edit.view`'s size (pixels are checked against it when the edit is parsed).
+pub fn samples_from_layers(layers: &Layers, edit: &SunColorEdit) -> Vec<([f32; 3], PixelSample)> {
+    let w = layers.width as usize;
+    edit.strokes
+        .iter()
+        .flat_map(|s| s.pixels.iter().map(move |p| (s.color, *p)))
+        .filter_map(|(c, p)| {
+            let i = p[1] as usize * w + p[0] as usize;
+            let sample = PixelSample {
+                direct: *layers.direct.get(i)?,
+                ambient: *layers.ambient.get(i)?,
+                transmittance: 1.0 - *layers.alpha.get(i)?,
+            };
+            Some((c, sample))
         })
         .collect()
 }
@@ -70,15 +93,25 @@ pub fn solve(
     Ok(num.map(|n| (n / den).clamp(0.0, 100.0)))
 }
 
-/// Marches the painted pixels and solves for the sun colour.
+/// Marches the painted pixels and solves for the sun colour. Cost: the fused transmittance
+/// sweep ([`Prepared::lit`]) and one march per painted pixel.
 pub fn estimate(
     volume: &Volume,
-    light: &SunLight,
     base: &CloudState,
     ambient: Option<&AmbientField>,
     edit: &SunColorEdit,
+    ctl: &dyn Control,
 ) -> Result<[f64; 3], EditError> {
-    let prepared = Prepared::new(volume, light, base, ambient);
+    let prepared = Prepared::lit(volume, base, ambient, ctl)?;
     let samples = painted_samples(&prepared, volume, edit);
     solve(&samples, base.background_srgb())
+}
+
+/// [`estimate`] from the layers of the base version's render at the edit's view.
+pub fn estimate_from_layers(
+    layers: &Layers,
+    base: &CloudState,
+    edit: &SunColorEdit,
+) -> Result<[f64; 3], EditError> {
+    solve(&samples_from_layers(layers, edit), base.background_srgb())
 }

@@ -1,0 +1,167 @@
+//! The coarse levels: a weighted graph in compressed rows (conductances and excess, as on the
+//! fine level — see [`super::fine`]), its residual and its multicolour Gauss–Seidel smoother.
+//!
+//! The points of a coarse level are numbered colour by colour (a greedy colouring: no two
+//! neighbours share a colour), so one colour is a contiguous range: a smoothing pass writes
+//! that range in parallel while reading the rest, on disjoint slices, and the result does not
+//! depend on the thread count.
+
+use rayon::prelude::*;
+
+use super::fine::Rgb;
+
+/// What the setup (aggregation, prolongation, Galerkin product, coarsest factorisation) needs
+/// of a level's operator.
+pub(super) trait Adjacency: Sync {
+    fn len(&self) -> usize;
+    /// An identity row with no conductance (a pinned voxel): never aggregated, never
+    /// interpolated.
+    fn decoupled(&self, i: usize) -> bool;
+    /// The excess `s_i` (1 for a decoupled row).
+    fn excess(&self, i: usize) -> f32;
+    /// Calls `f(j, c_ij)` for every non-zero conductance of row `i`.
+    fn each(&self, i: usize, f: impl FnMut(usize, f32));
+    /// The diagonal `s_i + Σ_j c_ij`.
+    fn diagonal(&self, i: usize) -> f32 {
+        let mut d = self.excess(i);
+        self.each(i, |_, c| d += c);
+        d
+    }
+}
+
+/// A coarse level's operator.
+pub(super) struct Graph {
+    /// Row `i`'s entries are `ptr[i]..ptr[i + 1]` of `col` and `c`.
+    pub ptr: Vec<usize>,
+    pub col: Vec<u32>,
+    /// Conductances (may be negative: a Galerkin operator need not be an M-matrix).
+    pub c: Vec<f32>,
+    pub excess: Vec<f32>,
+    /// Colour `k` is the points `colours[k]..colours[k + 1]`.
+    pub colours: Vec<usize>,
+}
+
+impl Adjacency for Graph {
+    fn len(&self) -> usize {
+        self.excess.len()
+    }
+    fn decoupled(&self, _: usize) -> bool {
+        false
+    }
+    fn excess(&self, i: usize) -> f32 {
+        self.excess[i]
+    }
+    #[inline]
+    fn each(&self, i: usize, mut f: impl FnMut(usize, f32)) {
+        for p in self.ptr[i]..self.ptr[i + 1] {
+            f(self.col[p] as usize, self.c[p]);
+        }
+    }
+}
+
+/// Rows per parallel task in the coarse-level loops.
+const CHUNK: usize = 512;
+
+impl Graph {
+    /// One multicolour Gauss–Seidel sweep of `A e = b` (colours in order, or reversed).
+    pub fn smooth(&self, e: &mut [Rgb], b: &[Rgb], reverse: bool) {
+        let k = self.colours.len() - 1;
+        for step in 0..k {
+            let colour = if reverse { k - 1 - step } else { step };
+            let (lo, hi) = (self.colours[colour], self.colours[colour + 1]);
+            let (before, rest) = e.split_at_mut(lo);
+            let (mine, after) = rest.split_at_mut(hi - lo);
+            let before: &[Rgb] = before;
+            let after: &[Rgb] = after;
+            mine.par_chunks_mut(CHUNK).enumerate().for_each(|(t, out)| {
+                for (m, v) in out.iter_mut().enumerate() {
+                    let i = lo + t * CHUNK + m;
+                    let mut acc = b[i];
+                    let mut d = self.excess[i];
+                    for p in self.ptr[i]..self.ptr[i + 1] {
+                        let j = self.col[p] as usize;
+                        // Neighbours never share the colour (module doc).
+                        let ej = if j < lo { before[j] } else { after[j - hi] };
+                        let c = self.c[p];
+                        d += c;
+                        for q in 0..3 {
+                            acc[q] += c * ej[q];
+                        }
+                    }
+                    if d > 0.0 {
+                        let inv = 1.0 / d;
+                        *v = acc.map(|x| x * inv);
+                    }
+                }
+            });
+        }
+    }
+
+    /// `out = b − A e`.
+    pub fn residual(&self, e: &[Rgb], b: &[Rgb], out: &mut [Rgb]) {
+        out.par_chunks_mut(CHUNK).enumerate().for_each(|(t, o)| {
+            for (m, v) in o.iter_mut().enumerate() {
+                let i = t * CHUNK + m;
+                let ei = e[i];
+                let s = self.excess[i];
+                let mut acc = [0f32; 3];
+                for q in 0..3 {
+                    acc[q] = b[i][q] - s * ei[q];
+                }
+                for p in self.ptr[i]..self.ptr[i + 1] {
+                    let ej = e[self.col[p] as usize];
+                    let c = self.c[p];
+                    for q in 0..3 {
+                        acc[q] -= c * (ei[q] - ej[q]);
+                    }
+                }
+                *v = acc;
+            }
+        });
+    }
+}
+
+/// A greedy colouring of a symmetric graph in index order and the numbering that puts the
+/// colours in contiguous ranges: returns (`new index of old i`, colour boundaries).
+pub(super) fn colour_order<A: Adjacency>(g: &A) -> (Vec<u32>, Vec<usize>) {
+    let n = g.len();
+    let mut colour = vec![u32::MAX; n];
+    let mut used: Vec<usize> = Vec::new();
+    let mut ncol = 0usize;
+    for i in 0..n {
+        used.clear();
+        g.each(i, |j, _| {
+            if colour[j] != u32::MAX {
+                used.push(colour[j] as usize);
+            }
+        });
+        used.sort_unstable();
+        let mut k = 0;
+        for &u in &used {
+            if u == k {
+                k += 1;
+            } else if u > k {
+                break;
+            }
+        }
+        colour[i] = k as u32;
+        ncol = ncol.max(k + 1);
+    }
+    let mut bounds = vec![0usize; ncol + 1];
+    for &c in &colour {
+        bounds[c as usize + 1] += 1;
+    }
+    for k in 0..ncol {
+        bounds[k + 1] += bounds[k];
+    }
+    let mut next = bounds.clone();
+    let perm = colour
+        .iter()
+        .map(|&c| {
+            let p = next[c as usize];
+            next[c as usize] += 1;
+            p as u32
+        })
+        .collect();
+    (perm, bounds)
+}

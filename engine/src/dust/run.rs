@@ -1,0 +1,261 @@
+//! The `dust` pipeline (SPEC §4): mesh → surface with crease-split normals, long edges split
+//! ([`super::surface`]) →
+//! dust amount D with exposure (step 1) → Perlin field and one fibre texture per shell (steps 2–3)
+//! → shell render over the base mesh (step 4) → outputs: `render.png`, `fibers.png`,
+//! `dust_amount.png`, `dusty.glb`, `report.json`.
+//!
+//! `dust_amount.png` shows D on the mesh from the render's camera: the base mesh coloured by D / K
+//! through the viridis colour map (dark violet = none, yellow = K), lit by the same sun without
+//! shadows (so the colours stay readable), no shells.
+//!
+//! Defaults that depend on the mesh: `max_thickness` = 1 % and `fiber_tile` = 1/8 of the bounding-
+//! box diagonal (report.json gives the values used).
+
+use std::time::Instant;
+
+use serde_json::json;
+
+use super::amount::{directional, vertex_exposure};
+use super::export::{dusty_glb, TextureAtlas};
+use super::fibers::{fiber_texture, shell_fiber_count};
+use super::mapping::Mapping;
+use super::noise::TileableNoise;
+use super::params::Params;
+use super::render::{shell_overlay, Shells};
+use super::surface::{crease_split, refine, MAX_REFINED_TRIANGLES};
+use super::texture::ShellTexture;
+use crate::formats::png_write::encode_rgba;
+use crate::geom::Mesh;
+use crate::pipeline::Limits;
+use crate::render::image::srgb_to_linear;
+use crate::render::mesh::{MeshColors, MeshInstance, MeshLighting, MeshRenderer};
+use crate::{Canceled, Control, InputError, Output};
+
+/// Largest `shells` × the mesh's triangles (or [`MAX_REFINED_TRIANGLES`] if more, what refining
+/// may make of a coarse mesh): the shell meshes of `dusty.glb` hold up to ~36 bytes per shell
+/// triangle, so 2^25 bounds them near 1.2 GB (e.g. 32 shells over a million triangles).
+pub const MAX_SHELL_TRIANGLES: u64 = 1 << 25;
+
+/// Decodes the mesh (see [`crate::mesh_view::MeshView::decode`]) and checks that its shells stay
+/// within [`MAX_SHELL_TRIANGLES`].
+pub fn decode(
+    bytes: &[u8],
+    filename: Option<&str>,
+    p: &Params,
+    limits: &Limits,
+) -> Result<Mesh, InputError> {
+    let mesh = p.view.decode(bytes, filename, limits)?;
+    let tris = mesh.triangles.len().max(MAX_REFINED_TRIANGLES) as u64;
+    let shell_tris = tris * u64::from(p.shells);
+    if shell_tris > MAX_SHELL_TRIANGLES {
+        return Err(InputError::TooLarge {
+            what: "shell triangles (shells × mesh triangles)",
+            actual: shell_tris,
+            max: MAX_SHELL_TRIANGLES,
+        });
+    }
+    Ok(mesh)
+}
+
+/// Viridis at 0, ¼, ½, ¾, 1 (sRGB bytes), interpolated in linear RGB.
+const VIRIDIS: [[u8; 3]; 5] = [
+    [0x44, 0x01, 0x54],
+    [0x3b, 0x52, 0x8b],
+    [0x21, 0x91, 0x8c],
+    [0x5e, 0xc9, 0x62],
+    [0xfd, 0xe7, 0x25],
+];
+
+/// The colour (linear RGB) of `x` ∈ [0, 1] on the viridis map.
+pub fn viridis(x: f32) -> [f32; 3] {
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let k = (x.floor() as usize).min(3);
+    let f = x - k as f32;
+    let (a, b) = (VIRIDIS[k], VIRIDIS[k + 1]);
+    [0, 1, 2].map(|c| {
+        let (la, lb) = (
+            srgb_to_linear(a[c] as f32 / 255.0),
+            srgb_to_linear(b[c] as f32 / 255.0),
+        );
+        la + (lb - la) * f
+    })
+}
+
+/// Bounding-box diagonal of `mesh`, metres (1 for an empty mesh).
+fn diagonal(mesh: &Mesh) -> f32 {
+    mesh.bounds()
+        .map(|(lo, hi)| (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt())
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .unwrap_or(1.0)
+}
+
+/// Runs the pipeline on a decoded mesh.
+pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+    let t_all = Instant::now();
+    let mut timings: Vec<(&str, f64)> = Vec::new();
+    let mut lap = |name: &'static str, t0: Instant| {
+        timings.push((name, t0.elapsed().as_secs_f64() * 1e3));
+    };
+
+    // Step 1: where dust lies.
+    ctl.progress("amount", 0.0);
+    let t0 = Instant::now();
+    let (mut mesh, mut normals) = crease_split(input, p.dust_source);
+    refine(&mut mesh, &mut normals);
+    let model = p.amount_model();
+    let exposure = vertex_exposure(&mesh, &normals, &model);
+    let u = p.dust_source;
+    let amount: Vec<f32> = normals
+        .iter()
+        .zip(&exposure)
+        .map(|(n, e)| directional(&model, *n, u) * e)
+        .collect();
+    lap("amount", t0);
+    ctl.checkpoint()?;
+
+    // Steps 2–3: the noise and one fibre texture per shell.
+    ctl.progress("noise", 0.2);
+    let t0 = Instant::now();
+    let side = p.texture_size;
+    let noise = TileableNoise::new(p.seed, p.noise_scale, p.noise_octaves).texture(side, side);
+    lap("noise", t0);
+    ctl.progress("fibers", 0.25);
+    let t0 = Instant::now();
+    let fp = p.fiber_params();
+    let mut atlas = TextureAtlas::new(side as usize, p.shells as usize);
+    let mut textures = Vec::with_capacity(p.shells as usize);
+    let mut fiber_counts = Vec::with_capacity(p.shells as usize);
+    for k in 0..p.shells {
+        ctl.checkpoint()?;
+        let count = shell_fiber_count(p.fibers, k, p.shells);
+        let tex = fiber_texture(&fp, &noise, side, side, p.seed, k, count);
+        atlas.put(k as usize, &tex);
+        textures.push(ShellTexture::new(&tex));
+        fiber_counts.push(count);
+        ctl.progress("fibers", 0.25 + 0.2 * (k + 1) as f32 / p.shells as f32);
+    }
+    lap("fibers", t0);
+
+    // Step 4: the render.
+    let t0 = Instant::now();
+    let diag = diagonal(&mesh);
+    let thickness = p.max_thickness.unwrap_or(0.01 * diag);
+    let tile = p.fiber_tile.unwrap_or(diag / 8.0);
+    let mapping = Mapping::new(&mesh, tile);
+    let shells = Shells {
+        mesh: &mesh,
+        normals: &normals,
+        amount: &amount,
+        thickness,
+        shells: p.shells,
+        mapping: &mapping,
+        texels_per_metre: side as f32 / tile,
+        textures: &textures,
+        noise: &noise,
+        noise_side: side as usize,
+        dust_color: p.dust_color_linear(),
+    };
+    let (w, h) = (p.view.width, p.view.height);
+    let light = p.view.lighting(&mesh);
+    let camera = p.view.camera_for(&mesh, w, h);
+    let base = MeshInstance {
+        positions: &mesh.positions,
+        normals: Some(&normals),
+        triangles: &mesh.triangles,
+        colors: MeshColors::PerPart(&mesh.parts),
+    };
+    let view = MeshRenderer::new(&[base], &camera, &light, w, h, shells.bounds(), ctl)?;
+    let overlay = shell_overlay(&view, &camera, &shells, ctl, (0.45, 0.75))?;
+    lap("shells", t0);
+    let t0 = Instant::now();
+    let image = view.render(Some(&overlay), ctl, (0.75, 0.8))?;
+    drop(overlay);
+    lap("render", t0);
+
+    // D on the mesh.
+    let t0 = Instant::now();
+    let k = p.stickiness.max(1e-6);
+    let colors: Vec<[f32; 3]> = amount.iter().map(|d| viridis(d / k)).collect();
+    let flat_light = MeshLighting {
+        shadows: false,
+        ..light.clone()
+    };
+    let amount_view = MeshRenderer::new(
+        &[MeshInstance {
+            colors: MeshColors::PerVertex(&colors),
+            ..base
+        }],
+        &camera,
+        &flat_light,
+        w,
+        h,
+        None,
+        ctl,
+    )?;
+    let amount_image = amount_view.render(None, ctl, (0.8, 0.85))?;
+    drop(amount_view);
+    lap("dust_amount", t0);
+
+    // Outputs.
+    ctl.progress("encode", 0.85);
+    let t0 = Instant::now();
+    let render_png = encode_rgba(&image);
+    let amount_png = encode_rgba(&amount_image);
+    let fibers_png = atlas.png();
+    let glb = dusty_glb(
+        &shells,
+        &atlas,
+        Some(json!({"pipeline": "dust", "shells": p.shells})),
+    );
+    lap("encode", t0);
+
+    let n = amount.len().max(1) as f64;
+    let dusty = amount.iter().filter(|&&d| d > 0.0).count();
+    let report = json!({
+        "pipeline": "dust",
+        "params": serde_json::to_value(p).unwrap_or_default(),
+        "input": {
+            "vertices": input.positions.len(),
+            "triangles": input.triangles.len(),
+            "parts": input.parts.len(),
+            "bounds": input.bounds().map(|(lo, hi)| [lo, hi]),
+            "has_normals": input.normals.is_some(),
+            "has_uvs": input.uvs.is_some(),
+        },
+        "surface": {
+            "vertices": mesh.positions.len(),
+            "max_thickness_m": thickness,
+            "fiber_tile_m": tile,
+            "mapping": match mapping { Mapping::Uv { .. } => "uv", Mapping::Triplanar { .. } => "triplanar" },
+        },
+        "amount": {
+            "mean": amount.iter().map(|&d| f64::from(d)).sum::<f64>() / n,
+            "max": amount.iter().copied().fold(0.0f32, f32::max),
+            "dusty_vertex_fraction": dusty as f64 / n,
+            "mean_exposure": exposure.iter().map(|&e| f64::from(e)).sum::<f64>() / n,
+        },
+        "fibers": {
+            "texture_size": side,
+            "per_shell": fiber_counts,
+            "atlas": {"columns": atlas.columns, "rows": atlas.rows, "width": atlas.width(), "height": atlas.height()},
+        },
+        "timings": timings.iter().map(|(s, ms)| json!({"stage": s, "ms": ms})).collect::<Vec<_>>(),
+        "total_ms": t_all.elapsed().as_secs_f64() * 1e3,
+    });
+    ctl.progress("done", 1.0);
+    Ok(vec![
+        Output::new("render.png", "image/png", render_png),
+        Output::new("fibers.png", "image/png", fibers_png),
+        Output::new("dust_amount.png", "image/png", amount_png),
+        Output::new("dusty.glb", "model/gltf-binary", glb),
+        Output::new(
+            "report.json",
+            "application/json",
+            serde_json::to_vec_pretty(&report).unwrap_or_default(),
+        ),
+    ])
+}

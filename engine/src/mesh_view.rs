@@ -1,0 +1,164 @@
+//! What the mesh pipelines (`snow-cover`, SPEC §2; `dust`, SPEC §4) share about the scene and its
+//! picture: the input's up axis, the output size, the camera, the sun, fog and shadows — their
+//! wire fields, validation (each pipeline with its own defaults), the decoding of the scene and the
+//! lighting and camera of its render. One copy for both pipelines.
+
+use serde::{Deserialize, Serialize};
+
+use crate::formats::mesh::{decode_mesh, sniff_mesh, MeshFormat, MeshOptions, UpAxis};
+use crate::geom::Mesh;
+use crate::params::{camera_spec, image_size, range, CameraSpec, OrbitDefaults, WireCamera};
+use crate::pipeline::Limits;
+use crate::render::camera::Camera;
+use crate::render::mesh::MeshLighting;
+use crate::render::terrain::sun_direction;
+use crate::{InputError, ParamError};
+
+/// Up axis of the input for formats without one fixed by their spec (OBJ, STL, PLY).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxisParam {
+    Y,
+    Z,
+}
+
+/// The view fields as they come off the wire (each pipeline's wire struct lists them, since
+/// `deny_unknown_fields` does not combine with `flatten`, and hands them over here).
+#[derive(Debug, Default, Clone)]
+pub struct WireMeshView {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub camera: Option<WireCamera>,
+    pub up_axis: Option<UpAxisParam>,
+    pub sun_azimuth_deg: Option<f64>,
+    pub sun_elevation_deg: Option<f64>,
+    pub fog: Option<f32>,
+    pub shadows: Option<bool>,
+}
+
+/// A pipeline's defaults for the view.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshViewDefaults {
+    pub orbit: OrbitDefaults,
+    /// Default `fog` (per scene diagonal).
+    pub fog: f32,
+}
+
+impl Default for MeshViewDefaults {
+    fn default() -> Self {
+        Self {
+            orbit: OrbitDefaults {
+                azimuth_deg: 210.0,
+                elevation_deg: 35.0,
+                fov_deg: 40.0,
+            },
+            fog: 0.6,
+        }
+    }
+}
+
+/// The validated view (serialised flat into the pipeline's canonical parameters).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MeshView {
+    /// Output image width, pixels, 16–8192. Default 960.
+    pub width: u32,
+    /// Output image height, pixels, 16–8192. Default 640.
+    pub height: u32,
+    /// Orbit around the scene's centre (defaults azimuth 210°, elevation 35°, fov 40°, distance
+    /// framing the scene) or eye/target.
+    pub camera: CameraSpec,
+    /// Up axis for OBJ/STL/PLY; glTF is Y-up by its spec unless this is given. Default: Z for
+    /// STL/PLY, Y for OBJ and glTF.
+    pub up_axis: Option<UpAxisParam>,
+    /// Sun for shading, compass azimuth degrees, 0–360. Default 150.
+    pub sun_azimuth_deg: f64,
+    /// Sun elevation, degrees, 1–90. Default 40.
+    pub sun_elevation_deg: f64,
+    /// Exponential fog density per scene diagonal, 0–10. Default: the pipeline's (snow-cover 0.6,
+    /// as the paper renders with fog).
+    pub fog: f32,
+    /// Cast shadows in the render. Default true.
+    pub shadows: bool,
+}
+
+impl MeshView {
+    /// Validates the view fields; errors name the field.
+    pub fn from_wire(
+        w: WireMeshView,
+        d: MeshViewDefaults,
+        limits: &Limits,
+    ) -> Result<Self, ParamError> {
+        let (width, height) = image_size(w.width, w.height, (960, 640), limits)?;
+        Ok(Self {
+            width,
+            height,
+            camera: camera_spec(w.camera.unwrap_or_default(), d.orbit)?,
+            up_axis: w.up_axis,
+            sun_azimuth_deg: range("sun_azimuth_deg", w.sun_azimuth_deg, 150.0, 0.0, 360.0)?,
+            sun_elevation_deg: range("sun_elevation_deg", w.sun_elevation_deg, 40.0, 1.0, 90.0)?,
+            fog: range("fog", w.fog, d.fog, 0.0, 10.0)?,
+            shadows: w.shadows.unwrap_or(true),
+        })
+    }
+
+    /// Decodes the scene. `up_axis` applies to OBJ/STL/PLY as the mesh readers define it; given
+    /// explicitly it also applies to glTF (whose spec says Y-up), because real files exist whose
+    /// content is Z-up inside a Y-up container (the Inventor scenes in `shared/data`).
+    pub fn decode(
+        &self,
+        bytes: &[u8],
+        filename: Option<&str>,
+        limits: &Limits,
+    ) -> Result<Mesh, InputError> {
+        let up = self.up_axis.map(|u| match u {
+            UpAxisParam::Y => UpAxis::Y,
+            UpAxisParam::Z => UpAxis::Z,
+        });
+        let opts = MeshOptions {
+            max_triangles: limits.max_input_triangles,
+            max_vertices: limits.max_input_triangles.saturating_mul(3),
+            up_axis: up,
+        };
+        let mut mesh = decode_mesh(bytes, filename, &opts)?;
+        let gltf = matches!(
+            sniff_mesh(bytes, filename),
+            Some(MeshFormat::Gltf | MeshFormat::Glb)
+        );
+        if gltf && up == Some(UpAxis::Z) {
+            // Z-up → Y-up: (x, y, z) → (x, z, −y), a proper rotation (winding kept).
+            for v in mesh
+                .positions
+                .iter_mut()
+                .chain(mesh.normals.iter_mut().flatten())
+            {
+                *v = [v[0], v[2], -v[1]];
+            }
+        }
+        Ok(mesh)
+    }
+
+    /// Sun, shadows and fog for rendering `mesh`; `fog` is per scene diagonal so the same value
+    /// suits a table and a house.
+    pub fn lighting(&self, mesh: &Mesh) -> MeshLighting {
+        let diag = mesh
+            .bounds()
+            .map(|(lo, hi)| (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt())
+            .unwrap_or(1.0)
+            .max(1e-3);
+        MeshLighting {
+            sun_dir: sun_direction(self.sun_azimuth_deg, self.sun_elevation_deg),
+            shadows: self.shadows,
+            fog_density: self.fog / diag,
+            ..MeshLighting::default()
+        }
+    }
+
+    /// The camera for `mesh` at `width × height` (see [`CameraSpec::camera`]).
+    pub fn camera_for(&self, mesh: &Mesh, width: u32, height: u32) -> Camera {
+        let bounds = mesh
+            .bounds()
+            .map(|(lo, hi)| (lo.map(f64::from), hi.map(f64::from)));
+        self.camera
+            .camera(bounds, f64::from(width) / f64::from(height))
+    }
+}
