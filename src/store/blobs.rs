@@ -77,6 +77,11 @@ pub(super) fn open(url: Option<&str>, data_dir: &std::path::Path) -> Result<Blob
     }
 }
 
+/// Object prefix of uploads being streamed in and of readiness probes. Not `tmp/`: with blobs in
+/// the data directory (the default) that is the local records' staging directory, which the
+/// local object store's automatic cleanup would remove when its last object goes.
+const STAGING: &str = "staging";
+
 /// Object path of the blob with this digest (which must be validated hex).
 fn blob_path(sha: &str) -> ObjPath {
     let prefix = sha.get(..2).unwrap_or("00");
@@ -122,7 +127,7 @@ impl Store {
         S: Stream<Item = Result<Bytes, StoreError>> + Unpin,
     {
         let tmp = ObjPath::from(format!(
-            "tmp/upload-{}",
+            "{STAGING}/upload-{}",
             hex::encode(rand::random::<[u8; 16]>())
         ));
         let upload = self.objects().put_multipart(&tmp).await.map_err(obj_err)?;
@@ -226,6 +231,21 @@ impl Store {
                 removed.1 += m.size;
             }
         }
+        // Uploads cut off by a crash leave their staging object behind.
+        let staging = ObjPath::from(STAGING);
+        let stale: Vec<_> = self
+            .objects()
+            .list(Some(&staging))
+            .try_collect()
+            .await
+            .map_err(obj_err)?;
+        for m in stale {
+            if now - m.last_modified >= min_age && self.objects().delete(&m.location).await.is_ok()
+            {
+                removed.0 += 1;
+                removed.1 += m.size;
+            }
+        }
         Ok(removed)
     }
 
@@ -242,7 +262,7 @@ impl Store {
     /// Checks that the blob store takes writes (readiness).
     pub async fn probe(&self) -> bool {
         let path = ObjPath::from(format!(
-            "tmp/probe-{}",
+            "{STAGING}/probe-{}",
             hex::encode(rand::random::<[u8; 8]>())
         ));
         let ok = self

@@ -5,7 +5,7 @@
 //! ```text
 //! blobs/sha256/ab/abcdef…   input assets and job outputs, named by the SHA-256 of their bytes
 //! assets/<sha256>.json      asset metadata (file name, size, last use)
-//! tmp/                      staging of streamed uploads
+//! staging/                  uploads being streamed in, readiness probes
 //! ```
 //! Local files (always under `data_dir`):
 //! ```text
@@ -106,6 +106,8 @@ impl Store {
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
         }
+        // Recreated if an operator cleaned it out while the service ran.
+        std::fs::create_dir_all(&tmp_dir).map_err(io(&tmp_dir))?;
         let mut tmp = tempfile::NamedTempFile::new_in(&tmp_dir).map_err(io(&tmp_dir))?;
         tmp.write_all(bytes).map_err(io(path))?;
         tmp.as_file().sync_all().map_err(io(path))?;
