@@ -17,12 +17,22 @@ fn spawn_server(data_dir: &std::path::Path) -> (Child, String) {
 
 /// Like [`spawn_server`] with more flags.
 pub fn spawn_server_with(data_dir: &std::path::Path, extra: &[&str]) -> (Child, String) {
+    spawn_server_env(data_dir, extra, &[])
+}
+
+/// Like [`spawn_server_with`] with environment variables.
+pub fn spawn_server_env(
+    data_dir: &std::path::Path,
+    extra: &[&str],
+    env: &[(&str, &str)],
+) -> (Child, String) {
     let mut child = Command::new(BIN)
         .args(["serve", "--bind", "127.0.0.1:0", "--log-format", "json"])
         .args(extra)
         .arg("--data-dir")
         .arg(data_dir)
         .env("PHENOMENA_LOG", "info")
+        .envs(env.iter().copied())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()

@@ -13,36 +13,50 @@ use futures_util::StreamExt;
 use serde_json::{json, Value};
 
 use crate::common::{redis_url, RedisPrefix};
-use crate::restart::{assert_same_as_cli, spawn_server_with, synthetic_npy, synthetic_npy_of};
+use crate::restart::{
+    assert_same_as_cli, spawn_server_env, spawn_server_with, synthetic_npy, synthetic_npy_of,
+};
 
 /// One replica process; killed when dropped.
-struct Replica {
-    child: Child,
-    addr: String,
-    name: String,
+pub struct Replica {
+    pub child: Child,
+    pub addr: String,
+    pub name: String,
 }
 
 impl Replica {
-    fn spawn(dir: &std::path::Path, redis: &str, prefix: &str, role: &str, name: &str) -> Self {
-        let (child, addr) = spawn_server_with(
-            dir,
-            &[
-                "--threads",
-                "1",
-                "--redis-url",
-                redis,
-                "--redis-prefix",
-                prefix,
-                "--redis-lease-secs",
-                "3",
-                "--role",
-                role,
-                "--replica-id",
-                name,
-                "--sweep-interval-secs",
-                "3600",
-            ],
-        );
+    pub fn spawn(dir: &std::path::Path, redis: &str, prefix: &str, role: &str, name: &str) -> Self {
+        Self::spawn_env(dir, redis, prefix, role, name, &[], &[])
+    }
+
+    /// Like [`Replica::spawn`] with more flags and environment variables.
+    pub fn spawn_env(
+        dir: &std::path::Path,
+        redis: &str,
+        prefix: &str,
+        role: &str,
+        name: &str,
+        extra: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        let mut args = vec![
+            "--threads",
+            "1",
+            "--redis-url",
+            redis,
+            "--redis-prefix",
+            prefix,
+            "--redis-lease-secs",
+            "3",
+            "--role",
+            role,
+            "--replica-id",
+            name,
+            "--sweep-interval-secs",
+            "3600",
+        ];
+        args.extend_from_slice(extra);
+        let (child, addr) = spawn_server_env(dir, &args, env);
         Replica {
             child,
             addr,
@@ -50,7 +64,7 @@ impl Replica {
         }
     }
 
-    fn url(&self, path: &str) -> String {
+    pub fn url(&self, path: &str) -> String {
         format!("http://{}{path}", self.addr)
     }
 }
@@ -62,7 +76,7 @@ impl Drop for Replica {
     }
 }
 
-async fn submit(c: &reqwest::Client, r: &Replica, input: &[u8], params: &Value) -> Value {
+pub async fn submit(c: &reqwest::Client, r: &Replica, input: &[u8], params: &Value) -> Value {
     let form = reqwest::multipart::Form::new()
         .text("params", params.to_string())
         .part(
@@ -90,7 +104,7 @@ async fn job(c: &reqwest::Client, r: &Replica, id: &str) -> Value {
 }
 
 /// Waits (bounded) until the job has ended; returns it.
-async fn wait_done(c: &reqwest::Client, r: &Replica, id: &str, limit: Duration) -> Value {
+pub async fn wait_done(c: &reqwest::Client, r: &Replica, id: &str, limit: Duration) -> Value {
     let t0 = Instant::now();
     loop {
         let j: Value = c
@@ -110,7 +124,7 @@ async fn wait_done(c: &reqwest::Client, r: &Replica, id: &str, limit: Duration) 
 }
 
 /// Reads a job's SSE stream to its end; returns (event, data) pairs.
-async fn sse(c: reqwest::Client, url: String) -> Vec<(String, Value)> {
+pub async fn sse(c: reqwest::Client, url: String) -> Vec<(String, Value)> {
     let resp = c.get(url).send().await.unwrap();
     assert_eq!(resp.status().as_u16(), 200);
     let mut body = resp.bytes_stream();
