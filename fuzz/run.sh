@@ -4,8 +4,10 @@
 # stable, so nightly-only flags are unlocked with RUSTC_BOOTSTRAP=1 and the run uses no sanitizer
 # (`-s none`): panics, hangs (-timeout) and allocations over -rss_limit_mb/-malloc_limit_mb are
 # what it finds. Crashes land in fuzz/artifacts/<target>/; the script exits non-zero on any.
-#   fuzz/run.sh 30                  # each target 30 s (CI: 15 s)
+#   fuzz/run.sh 30                  # each target 30 s
 #   fuzz/run.sh 3600 dem_geotiff    # one target for an hour
+# FUZZ_RUNS=N caps each target at N executions and fixes libFuzzer's seed (-seed=1), so a run
+# is repeatable: CI's regression run is `FUZZ_RUNS=20000 fuzz/run.sh 15` (whichever ends first).
 set -euo pipefail
 cd "$(dirname "$0")"
 secs="${1:-30}"; shift || true
@@ -18,9 +20,11 @@ mkdir -p logs
 status=0
 for t in "${targets[@]}"; do
   mkdir -p "corpus/$t"
+  extra=()
+  [ -z "${FUZZ_RUNS:-}" ] || extra=(-runs="$FUZZ_RUNS" -seed=1)
   if cargo fuzz run -s none --release "$t" "corpus/$t" -- \
       -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=2048 \
-      -max_len=1048576 -print_final_stats=1 >"logs/$t.log" 2>&1; then
+      -max_len=1048576 -print_final_stats=1 "${extra[@]}" >"logs/$t.log" 2>&1; then
     execs=$(grep -E '^stat::number_of_executed_units' "logs/$t.log" | awk '{print $2}')
     echo "$t: ${secs}s, ${execs:-?} executions, no crash"
   else

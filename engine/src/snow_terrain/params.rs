@@ -55,7 +55,16 @@ pub struct WireParams {
     pub cell_size: Option<f64>,
     pub vertical_scale: Option<f64>,
     pub sweep: Option<Sweep>,
+    pub outputs: Option<Vec<String>>,
 }
+
+/// The files a run can produce besides `report.json` (always) and `sweep.png` (with `sweep`).
+pub const OUTPUT_NAMES: &[&str] = &[
+    "render.png",
+    "snow_cover.tif",
+    "descriptor.png",
+    "terrain.glb",
+];
 
 /// Validated parameters of one `snow-terrain` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -96,6 +105,12 @@ pub struct Params {
     pub vertical_scale: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sweep: Option<Sweep>,
+    /// Which of [`OUTPUT_NAMES`] to produce, in that order whatever the order given; `report.json`
+    /// always comes too. A stage no requested output needs is skipped: without `render.png` there
+    /// is no render (a GIS user asking for `snow_cover.tif` alone pays for the descriptor only),
+    /// and an interactive preview asking for `render.png` alone skips the GeoTIFF, preview and
+    /// glTF encoders. Default: all four.
+    pub outputs: Vec<String>,
     /// One validated parameter set per sweep value (derived from `sweep`).
     #[serde(skip)]
     pub sweep_runs: Vec<Params>,
@@ -118,7 +133,38 @@ pub const SWEEPABLE: &[&str] = &[
     "haze",
 ];
 
+/// Validates `outputs`: known names, no repeats; returned in [`OUTPUT_NAMES`] order.
+fn output_names(given: Option<&[String]>) -> Result<Vec<String>, ParamError> {
+    let Some(given) = given else {
+        return Ok(OUTPUT_NAMES.iter().map(|s| s.to_string()).collect());
+    };
+    for (i, name) in given.iter().enumerate() {
+        if !OUTPUT_NAMES.contains(&name.as_str()) {
+            return Err(ParamError::new(
+                format!("outputs[{i}]"),
+                format!("no output {name:?}; one of: {}", OUTPUT_NAMES.join(", ")),
+            ));
+        }
+        if given[..i].contains(name) {
+            return Err(ParamError::new(
+                format!("outputs[{i}]"),
+                format!("{name:?} is listed twice"),
+            ));
+        }
+    }
+    Ok(OUTPUT_NAMES
+        .iter()
+        .filter(|n| given.iter().any(|g| g == *n))
+        .map(|s| s.to_string())
+        .collect())
+}
+
 impl Params {
+    /// Whether `name` (one of [`OUTPUT_NAMES`]) was asked for.
+    pub fn wants(&self, name: &str) -> bool {
+        self.outputs.iter().any(|o| o == name)
+    }
+
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
@@ -263,6 +309,7 @@ impl Params {
             cell_size,
             vertical_scale,
             sweep: None,
+            outputs: output_names(w.outputs.as_deref())?,
             sweep_runs: Vec::new(),
         })
     }

@@ -83,8 +83,9 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
     }
 }
 
-/// Runs the whole pipeline. Outputs: `render.png`, `snow_cover.tif`, `descriptor.png`,
-/// `terrain.glb`, `sweep.png` (when a sweep is given) and `report.json`.
+/// Runs the whole pipeline. Outputs: those of `render.png`, `snow_cover.tif`, `descriptor.png`,
+/// `terrain.glb` that `outputs` names (default all), `sweep.png` (when a sweep is given) and
+/// `report.json`.
 pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(String, f64)> = Vec::new();
@@ -101,7 +102,8 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     // The outputs that do not need the picture (snow_cover.tif, descriptor.png, terrain.glb)
     // are encoded while the render runs: the render has serial stretches (mesh setup, band
     // tails) that leave a core idle. Stage "render" is the render's own time; "encode" below is
-    // the PNG plus whatever the other encoders took beyond the render.
+    // the PNG plus whatever the other encoders took beyond the render. Outputs not asked for
+    // (`outputs`) are not made, and without `render.png` there is no render.
     let t0 = Instant::now();
     let snow: Vec<f32> = d.t.par_iter().map(|&t| 1.0 - t).collect();
     let render_end = if p.sweep_runs.is_empty() {
@@ -111,6 +113,9 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     };
     let ((image, render_ms), (tif, (preview, glb))) = rayon::join(
         || {
+            if !p.wants("render.png") {
+                return (Ok(None), 0.0);
+            }
             let t0 = Instant::now();
             let scene = scene_of(dem, &heights, &colour);
             let accel = TerrainAccel::new(&scene);
@@ -126,24 +131,32 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
                 ctl,
                 (DESCRIPTOR_END, render_end),
             );
-            (image, ms(t0))
+            (image.map(Some), ms(t0))
         },
         || {
             rayon::join(
-                || write_float32_geotiff(dem.width, dem.height, &snow, &dem.georef),
+                || {
+                    p.wants("snow_cover.tif")
+                        .then(|| write_float32_geotiff(dem.width, dem.height, &snow, &dem.georef))
+                },
                 || {
                     rayon::join(
-                        || encode_rgba(&descriptor_preview(dem, &d.t)),
                         || {
-                            terrain_glb(
-                                &heights,
-                                dem.width,
-                                dem.height,
-                                dem.dx,
-                                dem.dy,
-                                &colour,
-                                p.mesh_max_vertices,
-                            )
+                            p.wants("descriptor.png")
+                                .then(|| encode_rgba(&descriptor_preview(dem, &d.t)))
+                        },
+                        || {
+                            p.wants("terrain.glb").then(|| {
+                                terrain_glb(
+                                    &heights,
+                                    dem.width,
+                                    dem.height,
+                                    dem.dx,
+                                    dem.dy,
+                                    &colour,
+                                    p.mesh_max_vertices,
+                                )
+                            })
                         },
                     )
                 },
@@ -151,7 +164,9 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
         },
     );
     let image = image?;
-    timings.push(("render".to_string(), render_ms));
+    if image.is_some() {
+        timings.push(("render".to_string(), render_ms));
+    }
     let overlap_ms = (ms(t0) - render_ms).max(0.0);
 
     let mut outputs = Vec::new();
@@ -164,7 +179,7 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
 
     ctl.progress("encode", RENDER_END);
     let t0 = Instant::now();
-    let png = encode_rgba(&image);
+    let png = image.as_ref().map(encode_rgba);
     timings.push(("encode".to_string(), overlap_ms + ms(t0)));
     ctl.checkpoint()?;
 
@@ -212,15 +227,13 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     });
     let report = serde_json::to_vec_pretty(&report).unwrap_or_default();
 
-    outputs.splice(
-        0..0,
-        [
-            Output::new("render.png", "image/png", png),
-            Output::new("snow_cover.tif", "image/tiff", tif),
-            Output::new("descriptor.png", "image/png", preview),
-            Output::new("terrain.glb", "model/gltf-binary", glb),
-        ],
-    );
+    let made = [
+        png.map(|b| Output::new("render.png", "image/png", b)),
+        tif.map(|b| Output::new("snow_cover.tif", "image/tiff", b)),
+        preview.map(|b| Output::new("descriptor.png", "image/png", b)),
+        glb.map(|b| Output::new("terrain.glb", "model/gltf-binary", b)),
+    ];
+    outputs.splice(0..0, made.into_iter().flatten());
     outputs.push(Output::new("report.json", "application/json", report));
     ctl.progress("done", 1.0);
     Ok(outputs)

@@ -172,9 +172,73 @@ fn bad_sweeps_and_params_name_the_field() {
         (json!({"rock_color": "red"}), "rock_color"),
         (json!({"width": 8000, "height": 8000}), "width"),
         (json!({"probe_radius": null, "b": 1.5}), "b"),
+        (json!({"outputs": ["render.png", "mesh.obj"]}), "outputs[1]"),
+        (
+            json!({"outputs": ["terrain.glb", "terrain.glb"]}),
+            "outputs[1]",
+        ),
+        (json!({"outputs": "render.png"}), "outputs"),
     ] {
         let e = Params::from_json(&v, &l).unwrap_err();
         assert_eq!(e.field, field, "{v}: {e}");
+    }
+}
+
+/// `outputs` picks files, and a file is the same bytes whether or not the others were made.
+#[test]
+fn outputs_choose_the_files_and_leave_them_unchanged() {
+    let d = dem("maunga_whau_volcano.asc");
+    let base = json!({"width": 120, "height": 80, "samples": 2});
+    let all = run(&d, &params(base.clone()), &NoControl).unwrap();
+    let names = |outs: &[Output]| outs.iter().map(|o| o.name.clone()).collect::<Vec<_>>();
+    assert_eq!(
+        names(&all),
+        [
+            "render.png",
+            "snow_cover.tif",
+            "descriptor.png",
+            "terrain.glb",
+            "report.json"
+        ]
+    );
+    let stages = |outs: &[Output]| -> Vec<String> {
+        let r: serde_json::Value = serde_json::from_slice(output(outs, "report.json")).unwrap();
+        r["timings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["stage"].as_str().unwrap().to_string())
+            .collect()
+    };
+    for (want, expect) in [
+        (json!(["render.png"]), vec!["render.png", "report.json"]),
+        (
+            json!(["snow_cover.tif"]),
+            vec!["snow_cover.tif", "report.json"],
+        ),
+        (
+            json!(["terrain.glb", "descriptor.png"]),
+            vec!["descriptor.png", "terrain.glb", "report.json"],
+        ),
+        (json!([]), vec!["report.json"]),
+    ] {
+        let mut v = base.clone();
+        v["outputs"] = want.clone();
+        let outs = run(&d, &params(v), &NoControl).unwrap();
+        assert_eq!(names(&outs), expect, "{want}");
+        for o in &outs[..outs.len() - 1] {
+            assert!(
+                o.bytes == output(&all, &o.name),
+                "{} differs when made alone",
+                o.name
+            );
+        }
+        // No render without render.png.
+        assert_eq!(
+            stages(&outs).contains(&"render".to_string()),
+            want.as_array().unwrap().contains(&json!("render.png")),
+            "{want}"
+        );
     }
 }
 
