@@ -103,6 +103,9 @@ impl Store {
     /// Writes `bytes` to `path` atomically: a temp file in `tmp/`, fsync, rename.
     pub fn write_atomic(&self, path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
         let tmp_dir = self.root.join("tmp");
+        // `tmp/` is shared with the local blob store, whose automatic clean-up removes it when
+        // it empties (after the readiness probe's object is deleted): create it again.
+        std::fs::create_dir_all(&tmp_dir).map_err(io(&tmp_dir))?;
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
         }
@@ -114,6 +117,19 @@ impl Store {
             source: e.error,
         })?;
         Ok(())
+    }
+
+    /// Checks that the local data directory takes writes (readiness): a small file written,
+    /// fsynced and renamed like every record. False when the disk is full or read-only.
+    /// Blocking.
+    pub fn probe_local(&self) -> bool {
+        let path = self
+            .root
+            .join("tmp")
+            .join(format!("probe-{}", hex::encode(rand::random::<[u8; 8]>())));
+        let ok = self.write_atomic(&path, b"ok").is_ok();
+        let _ = std::fs::remove_file(&path);
+        ok
     }
 
     /// Writes a JSON record atomically.

@@ -7,6 +7,7 @@ mod clouds;
 mod common;
 mod conformance;
 mod dust;
+mod faults;
 mod openapi;
 mod restart;
 mod scale;
