@@ -9,6 +9,7 @@ mod conformance;
 mod dust;
 mod faults;
 mod openapi;
+mod overload;
 mod restart;
 mod scale;
 mod security;
