@@ -468,6 +468,39 @@ mod tests {
     }
 
     #[test]
+    fn connection_limits_have_floors() {
+        let c = Config::resolve(ServeArgs::default()).unwrap();
+        assert_eq!(
+            (
+                c.header_read_timeout_secs,
+                c.body_read_timeout_secs,
+                c.max_header_count
+            ),
+            (10, 30, 64)
+        );
+        for args in [
+            ServeArgs {
+                header_read_timeout_secs: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                body_read_timeout_secs: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                max_header_count: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                max_header_bytes: Some(512),
+                ..Default::default()
+            },
+        ] {
+            assert!(Config::resolve(args).is_err());
+        }
+    }
+
+    #[test]
     fn redis_passwords_are_not_logged() {
         assert_eq!(
             redact_url("redis://u:secret@h:6379/2"),
