@@ -88,6 +88,34 @@ pub struct ServeArgs {
     /// Seconds running jobs get to finish on shutdown before they are re-queued. Default 30.
     #[arg(long, env = "PHENOMENA_SHUTDOWN_GRACE_SECS")]
     pub shutdown_grace_secs: Option<u64>,
+    /// Seconds a client gets to send a request's line and headers (also how long an idle
+    /// keep-alive connection stays open); past it the connection is closed without a response.
+    /// Default 10: a real client sends its headers in one packet within milliseconds, 10 s covers
+    /// a slow mobile link with retransmissions, and a slow-header ("slowloris") client holds a
+    /// connection for no longer than that.
+    #[arg(long, env = "PHENOMENA_HEADER_READ_TIMEOUT_SECS")]
+    pub header_read_timeout_secs: Option<u64>,
+    /// Longest pause, in seconds, between two pieces of a request body; past it the request ends
+    /// with 408. An idle timeout, not a total: a big upload that keeps flowing is never cut.
+    /// Default 30: TCP retransmission back-off on a bad link stays well under it, and a client
+    /// trickling its body is cut within 30 s.
+    #[arg(long, env = "PHENOMENA_BODY_READ_TIMEOUT_SECS")]
+    pub body_read_timeout_secs: Option<u64>,
+    /// Slowest average rate, in bytes per second, a request body may arrive at after a first
+    /// `body_read_timeout_secs`; slower gets 408 (0 = no floor). Default 1024: a tenth of a
+    /// 1990s modem, so no real link is cut, while a client trickling a byte at a time to hold a
+    /// connection is cut within about `body_read_timeout_secs`.
+    #[arg(long, env = "PHENOMENA_BODY_MIN_BYTES_PER_SEC")]
+    pub body_min_bytes_per_sec: Option<u64>,
+    /// Most header fields in one request; more get 431. Default 64: browsers send about 15, and
+    /// proxies add a few `X-Forwarded-*`/`Via` fields.
+    #[arg(long, env = "PHENOMENA_MAX_HEADER_COUNT")]
+    pub max_header_count: Option<usize>,
+    /// Most bytes of request line plus headers; more get 431. Default 16384 (16 KiB): this API
+    /// uses no cookies, so real requests stay under 2 KiB; 16 KiB matches common proxy defaults
+    /// (nginx reads headers in 8 KiB buffers) and bounds what each connection can make us hold.
+    #[arg(long, env = "PHENOMENA_MAX_HEADER_BYTES")]
+    pub max_header_bytes: Option<usize>,
     /// Log format. Default text.
     #[arg(long, env = "PHENOMENA_LOG_FORMAT", value_enum)]
     pub log_format: Option<LogFormat>,
@@ -141,6 +169,11 @@ pub struct Config {
     pub threads: usize,
     pub max_wait_secs: u64,
     pub shutdown_grace_secs: u64,
+    pub header_read_timeout_secs: u64,
+    pub body_read_timeout_secs: u64,
+    pub body_min_bytes_per_sec: u64,
+    pub max_header_count: usize,
+    pub max_header_bytes: usize,
     pub log_format: LogFormat,
     /// Accepted bearer tokens; empty = authentication off. Logged as a count only.
     #[serde(serialize_with = "redact_tokens")]
@@ -231,6 +264,11 @@ impl Default for Config {
             threads: 0,
             max_wait_secs: 60,
             shutdown_grace_secs: 30,
+            header_read_timeout_secs: 10,
+            body_read_timeout_secs: 30,
+            body_min_bytes_per_sec: 1024,
+            max_header_count: 64,
+            max_header_bytes: 16 << 10,
             log_format: LogFormat::Text,
             auth_tokens: Vec::new(),
             cors_origins: Vec::new(),
@@ -285,6 +323,11 @@ impl Config {
             threads: pick!(threads),
             max_wait_secs: pick!(max_wait_secs),
             shutdown_grace_secs: pick!(shutdown_grace_secs),
+            header_read_timeout_secs: pick!(header_read_timeout_secs),
+            body_read_timeout_secs: pick!(body_read_timeout_secs),
+            body_min_bytes_per_sec: pick!(body_min_bytes_per_sec),
+            max_header_count: pick!(max_header_count),
+            max_header_bytes: pick!(max_header_bytes),
             log_format: pick!(log_format),
             auth_tokens: args
                 .auth_tokens
@@ -339,6 +382,21 @@ impl Config {
         }
         if cfg.sweep_interval_secs == 0 {
             return Err(ConfigError::Zero("sweep_interval_secs"));
+        }
+        if cfg.header_read_timeout_secs == 0 {
+            return Err(ConfigError::Zero("header_read_timeout_secs"));
+        }
+        if cfg.body_read_timeout_secs == 0 {
+            return Err(ConfigError::Zero("body_read_timeout_secs"));
+        }
+        if cfg.max_header_count == 0 {
+            return Err(ConfigError::Zero("max_header_count"));
+        }
+        // Below 1 KiB an ordinary request with a bearer token would not fit.
+        if cfg.max_header_bytes < 1024 {
+            return Err(ConfigError::Invalid(
+                "max_header_bytes must be at least 1024".into(),
+            ));
         }
         Ok(cfg)
     }
@@ -407,6 +465,39 @@ mod tests {
         };
         let c = Config::resolve(args).unwrap();
         assert_eq!(c.jobs().concurrency, 0);
+    }
+
+    #[test]
+    fn connection_limits_have_floors() {
+        let c = Config::resolve(ServeArgs::default()).unwrap();
+        assert_eq!(
+            (
+                c.header_read_timeout_secs,
+                c.body_read_timeout_secs,
+                c.max_header_count
+            ),
+            (10, 30, 64)
+        );
+        for args in [
+            ServeArgs {
+                header_read_timeout_secs: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                body_read_timeout_secs: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                max_header_count: Some(0),
+                ..Default::default()
+            },
+            ServeArgs {
+                max_header_bytes: Some(512),
+                ..Default::default()
+            },
+        ] {
+            assert!(Config::resolve(args).is_err());
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@ pub mod error;
 pub mod jobs;
 pub mod metrics;
 pub mod pipelines;
+pub mod serve;
 pub mod store;
 
 use std::future::Future;
@@ -148,6 +149,7 @@ pub async fn run(
     let token = state.shutdown.clone();
     let jobs = state.jobs.clone();
     let grace = Duration::from_secs(state.cfg.shutdown_grace_secs);
+    let limits = serve::ConnLimits::from_config(&state.cfg);
     let router = app(state);
     let drained = CancellationToken::new();
     let drained2 = drained.clone();
@@ -159,9 +161,8 @@ pub async fn run(
         jobs.shutdown(grace).await;
         drained2.cancel();
     });
-    axum::serve(listener, router)
-        .with_graceful_shutdown(async move { drained.cancelled().await })
-        .await
+    // Connections keep being served while jobs drain (readiness and submissions answer 503).
+    serve::serve(listener, router, limits, drained).await
 }
 
 /// Resolves on SIGINT or SIGTERM.

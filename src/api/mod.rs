@@ -2,6 +2,7 @@
 //! translate; the maths happens in the engine behind the job system.
 
 mod assets;
+mod body_timeout;
 mod clouds;
 mod dto;
 mod jobs;
@@ -105,6 +106,10 @@ pub fn app(state: AppState) -> Router {
         .fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            body_timeout::body_timeout,
+        ))
         .layer(middleware::from_fn_with_state(state.clone(), authenticate))
         .layer(middleware::from_fn_with_state(state.clone(), track))
         .layer(TraceLayer::new_for_http())

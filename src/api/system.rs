@@ -17,10 +17,20 @@ pub async fn healthz() -> Json<serde_json::Value> {
     Json(json!({ "status": "ok" }))
 }
 
-/// `GET /readyz`: ready to take jobs — not shutting down and the store is writable.
+/// `GET /readyz`: ready to take jobs — not shutting down, and the data directory and the blob
+/// store take writes (a full or read-only disk answers 503 until it recovers).
 pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
     if st.shutdown.is_cancelled() || !st.jobs.accepting() {
         return Err(ApiError::Unavailable("the service is shutting down".into()));
+    }
+    let store = st.jobs.store().clone();
+    let local = tokio::task::spawn_blocking(move || store.probe_local())
+        .await
+        .unwrap_or(false);
+    if !local {
+        return Err(ApiError::Unavailable(
+            "the data directory is not writable (full or read-only)".into(),
+        ));
     }
     if !st.jobs.store().probe().await {
         return Err(ApiError::Unavailable(

@@ -385,7 +385,12 @@ impl Embedded {
                 .jobs_started
                 .with_label_values(&[if rec.attempts > 1 { "reclaimed" } else { "new" }])
                 .inc();
-            self.store().put_json(&self.job_path(&rec.id), &rec)?;
+            // A full or read-only data directory must not strand the job as "running" in memory:
+            // it runs anyway (its outputs then fail to store and it ends `failed`, or it
+            // succeeds), and its record on disk stays `queued`, so a crash re-runs it.
+            if let Err(e) = self.store().put_json(&self.job_path(&rec.id), &rec) {
+                tracing::warn!(job = %rec.id, error = %e, "could not record the job as running; running it anyway");
+            }
             return Ok(Some((rec, live)));
         }
         Ok(None)

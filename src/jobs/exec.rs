@@ -195,7 +195,8 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                     rec.error = Some(failure(
                         "storage",
                         "Storage unavailable",
-                        "the outputs could not be stored",
+                        "the outputs could not be stored (the data directory or blob store is \
+                         full or read-only); submit the request again once storage recovers",
                     ));
                 }
             }

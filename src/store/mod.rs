@@ -106,7 +106,8 @@ impl Store {
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
         }
-        // Recreated if an operator cleaned it out while the service ran.
+        // Recreated if an operator cleaned it out while the service ran (the blob store no
+        // longer shares it: its staging objects live under `staging/`).
         std::fs::create_dir_all(&tmp_dir).map_err(io(&tmp_dir))?;
         let mut tmp = tempfile::NamedTempFile::new_in(&tmp_dir).map_err(io(&tmp_dir))?;
         tmp.write_all(bytes).map_err(io(path))?;
@@ -116,6 +117,19 @@ impl Store {
             source: e.error,
         })?;
         Ok(())
+    }
+
+    /// Checks that the local data directory takes writes (readiness): a small file written,
+    /// fsynced and renamed like every record. False when the disk is full or read-only.
+    /// Blocking.
+    pub fn probe_local(&self) -> bool {
+        let path = self
+            .root
+            .join("tmp")
+            .join(format!("probe-{}", hex::encode(rand::random::<[u8; 8]>())));
+        let ok = self.write_atomic(&path, b"ok").is_ok();
+        let _ = std::fs::remove_file(&path);
+        ok
     }
 
     /// Writes a JSON record atomically.
