@@ -29,6 +29,7 @@ async fn page_files_are_served_with_their_types() {
         ("app.js", "text/javascript; charset=utf-8"),
         ("yaml.js", "text/javascript; charset=utf-8"),
         ("cloud.js", "text/javascript; charset=utf-8"),
+        ("form.js", "text/javascript; charset=utf-8"),
         ("style.css", "text/css; charset=utf-8"),
     ] {
         let r = s
