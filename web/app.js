@@ -336,7 +336,8 @@ function pipelineTab(panel, name, spec) {
       });
       if (main) orbit(image);
       const cap = main && close ? `close-up render (distance ${sent.camera.distance} m)` : caption;
-      views.append(el("figure", { class: main ? "main" : undefined }, image, el("figcaption", {}, cap)));
+      views.append(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
+        el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "full size")])));
     }
     panel.dataset.status = job.status;
   }

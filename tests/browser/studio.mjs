@@ -222,6 +222,9 @@ try {
   await sc.locator("#p-snow-cover-wind-azimuth_deg").fill("90");
   await sc.locator("#p-snow-cover-wind-tilt_deg").fill("20");
   await sc.locator("input[name=frames]").fill("3");
+  await sc.locator(".field[data-name=wind]").scrollIntoViewIfNeeded();
+  await sc.locator(".field[data-name=snowfall]").screenshot({ path: path.join(shots, "04a-snow-cover-schedule.png") });
+  await sc.locator(".field[data-name=wind]").screenshot({ path: path.join(shots, "04a-snow-cover-wind.png") });
   await sc.locator("button.example").click();
   await page.waitForFunction(() => document.getElementById("panel-snow-cover").dataset.status);
   assert.equal(await sc.getAttribute("data-status"), "succeeded");
