@@ -244,6 +244,35 @@ try {
   await shot("04-snow-cover");
   log("snow-cover ran with a snowfall schedule, a wind and a 3-frame time-lapse");
 
+  // The cloud tab with structured parameters: layers as a list, a background colour (off by
+  // default, so absent = transparent), a sun-colour triple, a world box.
+  await page.click("#tab-cloud");
+  const cl = page.locator("#panel-cloud");
+  assert.equal(await cl.locator("#p-cloud-background").isDisabled(), true, "the background colour should be unset by default");
+  await cl.locator("#p-cloud-layers-alt1-direct").check();
+  await cl.locator("#p-cloud-layers-alt1-ambient").check();
+  await cl.locator("#p-cloud-background-on").check();
+  await cl.locator("#p-cloud-background").fill("#203040");
+  await cl.locator("#p-cloud-sun_color-0").fill("2");
+  for (const [r, v] of [[0, [0, 0, 0]], [1, [2, 1.6, 2]]]) {
+    for (const k of [0, 1, 2]) await cl.locator(`#p-cloud-bounds-r${r}-${k}`).fill(String(v[k]));
+  }
+  await cl.locator(".field[data-name=bounds]").scrollIntoViewIfNeeded();
+  await cl.locator(".field[data-name=bounds]").screenshot({ path: path.join(shots, "04b-cloud-bounds.png") });
+  await cl.locator(".field[data-name=sun_color]").screenshot({ path: path.join(shots, "04b-cloud-sun-color.png") });
+  await cl.locator("button.example").click();
+  await page.waitForFunction(() => document.getElementById("panel-cloud").dataset.status);
+  assert.equal(await cl.getAttribute("data-status"), "succeeded", await cl.locator("p.status").textContent());
+  const clJob = await page.evaluate(async (i) => (await fetch(`/v1/jobs/${i}`)).json(), await cl.getAttribute("data-job"));
+  assert.deepEqual(clJob.params.layers, ["direct", "ambient"]);
+  assert.equal(clJob.params.background, "#203040");
+  assert.deepEqual(clJob.params.sun_color, [2, 0.97, 0.92]);
+  assert.deepEqual(clJob.params.bounds, [[0, 0, 0], [2, 1.6, 2]]);
+  await cl.locator("img[data-output='direct.png']").waitFor();
+  await cl.locator("img[data-output='ambient.png']").waitFor();
+  await shot("04c-cloud");
+  log("cloud ran with layers, a background, a sun-colour triple and a world box");
+
   // 4. The cloud editor.
   await page.click("#tab-editor");
   const ed = page.locator("#panel-editor");
