@@ -5,11 +5,17 @@
 //     SCREENSHOT_DIR=target/browser node tests/browser/studio.mjs
 //
 // Steps (screenshots of each under SCREENSHOT_DIR): the page loads; upload a DEM, change a
-// parameter, see the image change, orbit with the arrow keys; the snow-cover example mesh runs with the progress bar
-// reaching the end; in the cloud editor paint a sun-colour stroke (version count and image
+// parameter, see the image change; orbit with the arrow keys and by dragging the render with the
+// mouse; a parameter sweep shows sweep.png beside the render and the snow-cover map; an eye/target
+// camera the API refuses shows a readable 422 naming the field; download outputs and check their
+// bytes; the snow-cover example runs with a snowfall schedule, a wind and a time-lapse, the
+// progress bar moving and finishing; the cloud tab posts layers, a background, a sun-colour triple
+// and a world box; in the cloud editor paint a sun-colour stroke (version count and image
 // change), drag a shadow (the sun direction in the state changes), undo (back to the previous
-// version and its image); the dust example runs and shows its render and fibre atlas; download
-// an output and check its bytes. Fails on any console error,
+// version and its image), redo (forward again), paint an ambient stroke (a new version and
+// image); the dust example runs with its render, fibre atlas and amount map, and the close-up
+// toggle changes the image with the far view beside it; every tab at 390×844 (no horizontal
+// overflow) and 1366×768. Fails on any console error (but the deliberate 422's failed load),
 // page error, or request to anything but the server.
 
 import assert from "node:assert/strict";
