@@ -394,11 +394,11 @@ function pipelineTab(panel, name, spec) {
   panel.append(
     el("h2", {}, document.getElementById(panel.getAttribute("aria-labelledby")).textContent),
     el("div", { class: "layout" },
-      el("div", { class: "controls" }, input,
+      el("div", { class: "area-in" }, input,
         el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
-        sweep ? sweep.box : null,
-        form),
-      el("div", { class: "results" }, bar, status, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads)));
+        sweep ? sweep.box : null),
+      el("div", { class: "area-out" }, bar, status, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),
+      el("div", { class: "area-more" }, form)));
 }
 
 function tabs() {

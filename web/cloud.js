@@ -255,12 +255,8 @@ export function initEditor(panel, spec) {
     el("h2", {}, "Cloud editor"),
     el("p", {}, "Create a scene from a volume, then edit it on the image: paint where the sunlit cloud should take a colour (the sun colour follows by least squares), paint ambient colour into the shadows, or drag from a shadowed spot to where its shadow should be (the sun moves). Every edit is a new version; undo selects an older one."),
     el("div", { class: "layout" },
-      el("div", {}, input,
-        el("h3", {}, "Versions (", count, ")"),
-        el("div", { class: "toolbar" }, undoBtn, redoBtn),
-        versions,
-        el("h3", {}, "State"), stateBox),
-      el("div", {},
+      el("div", { class: "area-in" }, input),
+      el("div", { class: "area-out" },
         el("div", { class: "toolbar" },
           el("fieldset", {}, el("legend", {}, "Tool"),
             tool("sun-color", "Sun-colour brush", sunColor),
@@ -268,7 +264,12 @@ export function initEditor(panel, spec) {
             tool("sun-direction", "Shadow drag"),
             tool("orbit", "Orbit camera"))),
         bar, status,
-        el("div", { class: "stage" }, img, canvas))));
+        el("div", { class: "stage" }, img, canvas)),
+      el("div", { class: "area-more" },
+        el("h3", {}, "Versions (", count, ")"),
+        el("div", { class: "toolbar" }, undoBtn, redoBtn),
+        versions,
+        el("h3", {}, "State"), stateBox)));
   $("#sun-color", panel).setAttribute("aria-label", "Sun colour");
   $("#ambient-color", panel).setAttribute("aria-label", "Ambient colour");
 }
