@@ -33,8 +33,8 @@ export function initEditor(panel, spec) {
   const stateBox = el("pre", { class: "state", "aria-label": "Renderer state of the current version" });
   const sunColor = el("input", { type: "color", id: "sun-color", value: "#ffa060" });
   const ambColor = el("input", { type: "color", id: "ambient-color", value: "#4060ff" });
-  const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo }, "Undo");
-  const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo }, "Redo");
+  const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo, "aria-keyshortcuts": "Control+Z", title: "Undo (Ctrl+Z)" }, "Undo");
+  const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo, "aria-keyshortcuts": "Control+Shift+Z Control+Y", title: "Redo (Ctrl+Shift+Z or Ctrl+Y)" }, "Redo");
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
   const note = (m) => { status.textContent = m; status.classList.remove("error"); };
 
@@ -105,6 +105,9 @@ export function initEditor(panel, spec) {
   async function select(n, clearRedo) {
     if (clearRedo) st.redo = [];
     st.current = n;
+    // Busy from here on, so that a second undo/redo waits for this one's image.
+    st.busy = true;
+    panel.dataset.busy = "true";
     await refresh();
     await render();
   }
@@ -229,6 +232,19 @@ export function initEditor(panel, spec) {
     e.preventDefault();
     turn(d[0], d[1]);
     render();
+  });
+  // Ctrl+Z / Ctrl+Shift+Z (or Ctrl+Y) anywhere in the editor but in a text field.
+  panel.addEventListener("keydown", (e) => {
+    if (!(e.ctrlKey || e.metaKey) || e.altKey) return;
+    if (e.target.matches("input[type=text], input[type=number], textarea")) return;
+    const k = e.key.toLowerCase();
+    if (k === "z" && !e.shiftKey) {
+      e.preventDefault();
+      undo();
+    } else if ((k === "z" && e.shiftKey) || k === "y") {
+      e.preventDefault();
+      redo();
+    }
   });
   function turn(dAz, dEl) {
     st.camera = {

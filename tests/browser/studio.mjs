@@ -384,6 +384,21 @@ try {
   await shot("08c-editor-ambient");
   log("ambient stroke made version 4");
 
+  // Undo and redo from the keyboard (Ctrl+Z, Ctrl+Shift+Z) on the focused image.
+  await ed.locator("canvas").focus();
+  await page.keyboard.press("Control+z");
+  await page.waitForFunction((prev) => {
+    const p = document.getElementById("panel-editor");
+    return p.dataset.current === "3" && p.dataset.busy === "false" && p.dataset.image !== prev;
+  }, v4Image);
+  await page.keyboard.press("Control+Shift+Z");
+  await page.waitForFunction(() => {
+    const p = document.getElementById("panel-editor");
+    return p.dataset.current === "4" && p.dataset.busy === "false" && document.getElementById("editor-image").complete;
+  });
+  assert.equal(await hashOf(await ed.getAttribute("data-image")), await hashOf(v4Image), "Ctrl+Shift+Z did not return to version 4");
+  log("Ctrl+Z / Ctrl+Shift+Z undo and redo");
+
   // 5. Dust: the example mesh, small textures; the render and the fibre atlas show.
   await page.click("#tab-dust");
   const du = page.locator("#panel-dust");
