@@ -284,6 +284,7 @@ function choice(ctx, name, prop, id, label) {
   const select = el("select", { id, "aria-label": `${label}: kind` }, alts.map((a, k) => el("option", { value: k, selected: k === current }, title(a))));
   const ws = alts.map((a, k) => {
     const w = widget(ctx, name, { ...a, default: k === current ? prop.default : a.default }, `${id}-alt${k}`, `${label} (${title(a)})`);
+    if (w.input && !w.inline && !w.input.getAttribute("aria-label")) w.input.setAttribute("aria-label", `${label} (${title(a)})`);
     const holder = el("div", { class: "alt", hidden: k !== current }, w.inline ? el("span", {}, w.input, " ", el("label", { for: w.input.id, class: "inline" }, "yes")) : w.node || w.input);
     return { w, holder };
   });

@@ -84,6 +84,11 @@ try {
   await page.waitForSelector("body[data-ready=true]");
   assert.ok(await page.locator("#panel-snow-terrain input[name=probe_radius]").count() === 1, "no probe_radius field");
   assert.equal(await page.inputValue("#panel-snow-terrain input[name=probe_radius]"), "5000", "probe_radius default");
+  // Every control has an accessible name (a label, aria-label or its text).
+  const unnamed = await page.evaluate(() => [...document.querySelectorAll("input, select, textarea, button")]
+    .filter((e) => !(e.labels && e.labels.length) && !e.getAttribute("aria-label") && !e.getAttribute("aria-labelledby") && !(e.tagName === "BUTTON" && e.textContent.trim()))
+    .map((e) => e.id || e.outerHTML.slice(0, 80)));
+  assert.deepEqual(unnamed, [], "controls without an accessible name");
   await shot("01-loaded");
   log("page loaded");
 
