@@ -5,6 +5,7 @@
 
 import { parseYaml } from "./yaml.js";
 import { initEditor } from "./cloud.js";
+import { buildForm, resolve } from "./form.js";
 
 /** Per pipeline: the schema of its params, the multipart part name (for labels), the example. */
 const PIPELINES = {
@@ -12,31 +13,28 @@ const PIPELINES = {
     schema: "SnowTerrainParams",
     input: "DEM (GeoTIFF, .asc, .hgt, 16-bit PNG, .npy)",
     example: "dem.asc",
-    images: ["render.png", "descriptor.png", "sweep.png"],
+    images: [["render.png", "render"], ["descriptor.png", "snow-cover map (white = snow)"], ["sweep.png", "parameter sweep"]],
   },
   "snow-cover": {
     schema: "SnowCoverParams",
     input: "mesh (glTF/GLB, OBJ, STL, PLY)",
     example: "mesh.obj",
-    images: ["render.png", "timelapse.png"],
+    images: [["render.png", "render"], ["timelapse.png", "time-lapse"]],
   },
   cloud: {
     schema: "CloudParams",
     input: "density volume (.npy, NRRD, .vdb)",
     example: "volume.npy",
-    images: ["render.png", "direct.png", "ambient.png"],
+    images: [["render.png", "render"], ["direct.png", "direct light"], ["ambient.png", "ambient light"]],
   },
   dust: {
     schema: "DustParams",
     input: "mesh (glTF/GLB, OBJ, STL, PLY)",
     example: "mesh.obj",
-    images: ["render.png", "dust_amount.png", "fibers.png"],
+    images: [["render.png", "render"], ["fibers.png", "fibre textures (atlas)"], ["dust_amount.png", "dust amount D"]],
+    closeUp: true,
   },
 };
-
-/** Fields the form leaves out: the camera is driven by dragging the preview; the rest are
- * structured values (lists, schedules, boxes) better sent through the API directly. */
-const SKIP = new Set(["camera", "sweep", "layers", "bounds", "dims", "snowfall", "wind", "sun_direction", "sun_color", "ambient", "dust_source"]);
 
 /** The longest side of a quick preview, pixels. */
 const PREVIEW_MAX = 480;
@@ -57,11 +55,17 @@ export function el(tag, attrs = {}, ...children) {
 
 /** Reads a problem+json (or any) error response into a message. */
 export async function problem(resp) {
+  return (await problemOf(resp)).message;
+}
+
+/** A problem+json response as { message, field }: "Invalid parameter: wind: missing field …". */
+export async function problemOf(resp) {
   try {
     const p = await resp.json();
-    return p.detail || p.title || `HTTP ${resp.status}`;
+    const message = p.title && p.detail ? `${p.title} (${resp.status}): ${p.detail}` : p.detail || p.title || `HTTP ${resp.status}`;
+    return { message, field: p.field };
   } catch {
-    return `HTTP ${resp.status}`;
+    return { message: `HTTP ${resp.status}` };
   }
 }
 
@@ -149,72 +153,28 @@ export function inputBox(label, example, onAsset, onError) {
   return zone;
 }
 
-/** One form control per documented scalar parameter, with its range, default and description. */
-function buildForm(schema, onChange) {
-  const form = el("form", { class: "params", onsubmit: (e) => e.preventDefault() });
-  const read = {};
-  for (const [name, prop] of Object.entries(schema.properties || {})) {
-    if (SKIP.has(name)) continue;
-    const id = `p-${schema.__name}-${name}`;
-    const desc = el("span", { class: "desc", id: `${id}-d` }, prop.description || "");
-    let input;
-    let get;
-    const type = Array.isArray(prop.type) ? prop.type[0] : prop.type;
-    if (type === "boolean") {
-      input = el("input", { type: "checkbox", id, name, "aria-describedby": `${id}-d` });
-      input.checked = prop.default === true;
-      get = () => input.checked;
-      form.append(el("div", { class: "field check" }, input, " ", el("label", { for: id }, name), desc));
-    } else {
-      if (prop.enum) {
-        input = el("select", { id, name, "aria-describedby": `${id}-d` },
-          prop.default === undefined ? el("option", { value: "" }, "(default)") : null,
-          prop.enum.map((v) => el("option", { value: v, selected: v === prop.default }, v)));
-        get = () => (input.value === "" ? undefined : input.value);
-      } else if (type === "string" && prop.pattern && prop.pattern.includes("#")) {
-        // A colour with no default (cloud `background`: absent = transparent) has no
-        // "unset" state in a colour picker; leave it to the API.
-        if (prop.default === undefined) continue;
-        input = el("input", { type: "color", id, name, value: prop.default || "#000000", "aria-describedby": `${id}-d` });
-        get = () => input.value;
-      } else if (type === "integer" || type === "number") {
-        const step = type === "integer" ? 1 : "any";
-        input = el("input", {
-          type: "number", id, name, step, min: prop.minimum, max: prop.maximum,
-          value: prop.default, placeholder: prop.default === undefined ? "(unset)" : undefined,
-          "aria-describedby": `${id}-d`,
-        });
-        get = () => (input.value === "" || !input.checkValidity() ? undefined : Number(input.value));
-      } else {
-        continue;
-      }
-      const range = prop.minimum !== undefined && prop.maximum !== undefined ? ` (${prop.minimum}–${prop.maximum})` : "";
-      form.append(el("div", { class: "field" }, el("label", { for: id }, name + range), input, desc));
-    }
-    read[name] = { get, def: prop.default };
-    input.addEventListener("input", onChange);
-    input.addEventListener("change", onChange);
+/** Starting values for a sweep of `param`: five values around its current value, in its range. */
+function sweepValues(prop, current) {
+  const lo = prop.minimum ?? 0;
+  const hi = prop.maximum ?? (current || 1) * 4;
+  const v = current ?? prop.default ?? (lo + hi) / 2;
+  let vals;
+  if (v > 0 && lo >= 0 && hi / Math.max(lo, 1e-9) > 1000) {
+    vals = [v / 4, v / 2, v, v * 2, v * 4]; // wide ranges (metres): geometric
+  } else {
+    const span = Math.min(hi - lo, Math.max(Math.abs(v), (hi - lo) / 2));
+    vals = [-1, -0.5, 0, 0.5, 1].map((k) => v + (k * span) / 2);
   }
-  return {
-    form,
-    /** The parameters that differ from their defaults. */
-    values() {
-      const out = {};
-      for (const [name, { get, def }] of Object.entries(read)) {
-        const v = get();
-        if (v !== undefined && v !== def) out[name] = v;
-      }
-      return out;
-    },
-  };
+  const round = prop.type === "integer" ? Math.round : (x) => Number(x.toPrecision(3));
+  return [...new Set(vals.map((x) => round(Math.min(hi, Math.max(lo, x)))))];
 }
 
 /** A pipeline tab: input, form, preview with orbit, progress, outputs. */
 function pipelineTab(panel, name, spec) {
   const cfg = PIPELINES[name];
-  const schema = { ...spec.components.schemas[cfg.schema], __name: name };
-  const cameraSchema = spec.components.schemas.Camera.properties;
-  const state = { asset: null, camera: null, timer: 0, follow: null, seq: 0 };
+  const schema = spec.components.schemas[cfg.schema];
+  const cameraSchema = resolve(spec, spec.components.schemas.Camera).properties;
+  const state = { asset: null, timer: 0, follow: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null };
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const bar = el("progress", { max: 1, value: 0, "aria-label": `${name} progress` });
   const views = el("div", { class: "views" });
@@ -222,34 +182,59 @@ function pipelineTab(panel, name, spec) {
   const quick = el("input", { type: "checkbox", id: `quick-${name}`, checked: true });
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
 
-  const { form, values } = buildForm(schema, () => schedule());
+  const { form, values, widgets, mark } = buildForm(spec, schema, name, () => schedule());
   quick.addEventListener("change", () => schedule());
 
   // A parameter sweep (snow-terrain's `sweep`): one numeric parameter over a list of values,
-  // rendered into sweep.png beside the render.
+  // rendered into sweep.png beside the render and the snow-cover map.
   let sweep = null;
   const sweepProp = schema.properties.sweep;
   if (sweepProp) {
+    const vp = sweepProp.properties.values;
     const param = el("select", { id: `sweep-${name}-param` },
       el("option", { value: "" }, "(no sweep)"),
       sweepProp.properties.param.enum.map((v) => el("option", { value: v }, v)));
-    const vals = el("input", { type: "text", id: `sweep-${name}-values`, placeholder: "e.g. 1000, 5000, 20000", inputmode: "decimal" });
-    param.addEventListener("change", () => schedule());
+    const vals = el("input", { type: "text", id: `sweep-${name}-values`, placeholder: "e.g. 1000, 5000, 20000", inputmode: "decimal", "aria-describedby": `sweep-${name}-d` });
+    param.addEventListener("change", () => {
+      // Suggest values around the parameter's current value; the user edits them.
+      if (param.value) {
+        const w = widgets[param.value];
+        const cur = w && w.get();
+        vals.value = sweepValues(resolve(spec, schema.properties[param.value]), typeof cur === "number" && !Number.isNaN(cur) ? cur : undefined).join(", ");
+      }
+      schedule();
+    });
     vals.addEventListener("change", () => schedule());
     sweep = {
-      box: el("fieldset", { class: "field" }, el("legend", {}, "Parameter sweep"),
+      box: el("fieldset", { class: "field sweep" }, el("legend", {}, "Parameter sweep"),
         el("label", { for: param.id }, "param"), param,
-        el("label", { for: vals.id }, `values (${sweepProp.properties.values.minItems}–${sweepProp.properties.values.maxItems}, comma-separated)`), vals,
-        el("span", { class: "desc" }, sweepProp.description)),
+        el("label", { for: vals.id }, `values (${vp.minItems}–${vp.maxItems}, comma-separated)`), vals,
+        el("span", { class: "desc", id: `sweep-${name}-d` }, sweepProp.description)),
       value() {
         const v = vals.value.split(/[,\s]+/).filter(Boolean).map(Number);
-        return param.value && v.length >= 2 && v.every(Number.isFinite) ? { param: param.value, values: v } : undefined;
+        return param.value && v.length >= vp.minItems && v.length <= vp.maxItems && v.every(Number.isFinite) ? { param: param.value, values: v } : undefined;
       },
     };
   }
 
+  // Dust's close-up: the orbit camera at a tenth of the mesh's size, so the fibres show.
+  let closeUp = null;
+  if (cfg.closeUp) {
+    closeUp = el("button", {
+      type: "button", class: "secondary", id: `closeup-${name}`, "aria-pressed": "false", disabled: true,
+      title: "Render from a camera at a tenth of the mesh's size from its centre (the far view stays beside it)",
+      onclick: () => {
+        state.closeUp = !state.closeUp;
+        closeUp.setAttribute("aria-pressed", String(state.closeUp));
+        closeUp.textContent = state.closeUp ? "Close-up: on" : "Close-up: off";
+        run();
+      },
+    }, "Close-up: off");
+  }
+
   function params() {
-    const p = values();
+    const { values: p, bad } = values();
+    if (bad.length) return { bad };
     if (quick.checked) {
       const w = p.width ?? schema.properties.width.default;
       const h = p.height ?? schema.properties.height.default;
@@ -257,10 +242,13 @@ function pipelineTab(panel, name, spec) {
       p.width = Math.max(16, Math.round(w * k));
       p.height = Math.max(16, Math.round(h * k));
     }
-    if (state.camera) p.camera = { ...state.camera };
     const sw = sweep && sweep.value();
     if (sw) p.sweep = sw;
-    return p;
+    if (state.closeUp && state.size) {
+      const c = p.camera && !p.camera.eye ? p.camera : {};
+      p.camera = { ...c, distance: Number((state.size / 10).toPrecision(4)) };
+    }
+    return { params: p };
   }
 
   function schedule() {
@@ -269,24 +257,36 @@ function pipelineTab(panel, name, spec) {
   }
 
   async function run() {
+    clearTimeout(state.timer);
+    if (!state.asset) return;
     const seq = ++state.seq;
     if (state.follow) state.follow.close();
     status.classList.remove("error");
+    const { params: p, bad } = params();
+    if (bad) return error(`Not sent: fix ${bad.join(", ")} (a number out of its range, or an incomplete value).`);
+    mark(null);
     status.textContent = "Submitting…";
     bar.value = 0;
     const resp = await fetch(`/v1/${name}`, {
       method: "POST",
       headers: { "content-type": "application/json" },
-      body: JSON.stringify({ asset: state.asset.id, params: params() }),
+      body: JSON.stringify({ asset: state.asset.id, params: p }),
     });
-    if (!resp.ok) return error(await problem(resp));
+    if (!resp.ok) {
+      const pr = await problemOf(resp);
+      if (seq !== state.seq) return;
+      if (pr.field) mark(pr.field.replace(/^params\./, "").split(/[.[]/)[0]);
+      panel.dataset.status = "rejected";
+      return error(pr.message);
+    }
     const job = await resp.json();
     panel.dataset.job = job.id;
-    state.follow = followJob(job, (p, stage) => {
+    delete panel.dataset.status;
+    state.follow = followJob(job, (f, stage) => {
       if (seq !== state.seq) return;
-      bar.value = p;
-      panel.dataset.progress = String(p);
-      status.textContent = `${stage} — ${Math.round(p * 100)} %`;
+      bar.value = f;
+      panel.dataset.progress = String(f);
+      status.textContent = `${stage} — ${Math.round(f * 100)} %`;
     });
     let done;
     try {
@@ -295,47 +295,67 @@ function pipelineTab(panel, name, spec) {
       return error(e.message);
     }
     if (seq !== state.seq) return;
-    show(done);
+    await show(done, p);
   }
 
-  function show(job) {
-    panel.dataset.status = job.status;
+  async function show(job, sent) {
     if (job.status !== "succeeded") {
+      panel.dataset.status = job.status;
       return error(job.error ? `${job.error.title}: ${job.error.detail}` : `job ${job.status}`);
     }
+    if (job.params && job.params.camera) state.resolvedCamera = job.params.camera;
+    if (closeUp && state.size === null) {
+      // The mesh's size, for the close-up: the report's input bounds.
+      const rep = job.outputs.find((o) => o.name === "report.json");
+      if (rep) {
+        const r = await fetch(rep.url);
+        const b = r.ok && (await r.json()).input?.bounds;
+        if (b) state.size = Math.max(b[1][0] - b[0][0], b[1][1] - b[0][1], b[1][2] - b[0][2]);
+      }
+      closeUp.disabled = !state.size;
+    }
+    const close = state.closeUp && sent.camera && sent.camera.distance;
     status.textContent = `Done (job ${job.id.slice(0, 12)}…).`;
     views.replaceChildren();
     downloads.replaceChildren();
     for (const out of job.outputs) {
       downloads.append(el("li", {}, el("a", { class: "button secondary", href: out.url, download: out.name }, `${out.name} (${(out.size / 1024).toFixed(1)} KiB)`)));
     }
-    for (const img of cfg.images) {
+    if (close && state.far) {
+      views.append(el("figure", { class: "far" }, el("img", { src: state.far, alt: "far view (the last render without the close-up)", "data-output": "far" }), el("figcaption", {}, "far view")));
+    }
+    for (const [img, caption] of cfg.images) {
       const out = job.outputs.find((o) => o.name === img);
       if (!out) continue;
       const main = img === "render.png";
+      if (main && !close) state.far = out.url;
       const image = el("img", {
-        src: out.url, alt: `${img} of job ${job.id}`, class: main ? "preview" : undefined,
+        src: out.url, alt: `${caption} (${img}) of job ${job.id}`, class: main ? "preview" : img.replace(".png", ""),
         tabindex: main ? 0 : undefined, "data-output": img,
         title: main ? "Drag (or use the arrow keys) to orbit the camera" : undefined,
       });
       if (main) orbit(image);
-      views.append(el("figure", {}, image, el("figcaption", {}, img)));
+      const cap = main && close ? `close-up render (distance ${sent.camera.distance} m)` : caption;
+      views.append(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
+        el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "full size")])));
     }
+    panel.dataset.status = job.status;
   }
 
   // Orbit: dragging the render turns the camera (azimuth by x, elevation by y); arrow keys too.
-  function camera() {
-    return state.camera || {
+  // The camera fields of the form switch to "orbit" and show the new values.
+  function turn(dAz, dEl) {
+    const cam = widgets.camera;
+    const base = {
       azimuth_deg: cameraSchema.azimuth_deg.default,
       elevation_deg: cameraSchema.elevation_deg.default,
+      ...(state.resolvedCamera || {}),
+      ...cam.orbitValues(),
     };
-  }
-  function turn(dAz, dEl) {
-    const c = camera();
-    state.camera = {
-      azimuth_deg: ((c.azimuth_deg + dAz) % 360 + 360) % 360,
-      elevation_deg: Math.max(-89, Math.min(89, c.elevation_deg + dEl)),
-    };
+    cam.setOrbit({
+      azimuth_deg: ((base.azimuth_deg + dAz) % 360 + 360) % 360,
+      elevation_deg: Math.max(-89, Math.min(89, base.elevation_deg + dEl)),
+    });
   }
   function orbit(img) {
     let start = null;
@@ -362,15 +382,23 @@ function pipelineTab(panel, name, spec) {
     });
   }
 
-  const input = inputBox(cfg.input, cfg.example, (asset) => { state.asset = asset; panel.dataset.asset = asset.id; schedule(); }, error);
+  const input = inputBox(cfg.input, cfg.example, (asset) => {
+    if (!state.asset || state.asset.id !== asset.id) {
+      state.size = null;
+      state.far = null;
+    }
+    state.asset = asset;
+    panel.dataset.asset = asset.id;
+    schedule();
+  }, error);
   panel.append(
-    el("h2", {}, panel.getAttribute("aria-label") || document.getElementById(panel.getAttribute("aria-labelledby")).textContent),
+    el("h2", {}, document.getElementById(panel.getAttribute("aria-labelledby")).textContent),
     el("div", { class: "layout" },
-      el("div", {}, input,
+      el("div", { class: "area-in" }, input,
         el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
-        sweep ? sweep.box : null,
-        form),
-      el("div", {}, bar, status, views, downloads)));
+        sweep ? sweep.box : null),
+      el("div", { class: "area-out" }, bar, status, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),
+      el("div", { class: "area-more" }, form)));
 }
 
 function tabs() {

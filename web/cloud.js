@@ -33,8 +33,8 @@ export function initEditor(panel, spec) {
   const stateBox = el("pre", { class: "state", "aria-label": "Renderer state of the current version" });
   const sunColor = el("input", { type: "color", id: "sun-color", value: "#ffa060" });
   const ambColor = el("input", { type: "color", id: "ambient-color", value: "#4060ff" });
-  const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo }, "Undo");
-  const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo }, "Redo");
+  const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo, "aria-keyshortcuts": "Control+Z", title: "Undo (Ctrl+Z)" }, "Undo");
+  const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo, "aria-keyshortcuts": "Control+Shift+Z Control+Y", title: "Redo (Ctrl+Shift+Z or Ctrl+Y)" }, "Redo");
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
   const note = (m) => { status.textContent = m; status.classList.remove("error"); };
 
@@ -105,6 +105,9 @@ export function initEditor(panel, spec) {
   async function select(n, clearRedo) {
     if (clearRedo) st.redo = [];
     st.current = n;
+    // Busy from here on, so that a second undo/redo waits for this one's image.
+    st.busy = true;
+    panel.dataset.busy = "true";
     await refresh();
     await render();
   }
@@ -230,6 +233,19 @@ export function initEditor(panel, spec) {
     turn(d[0], d[1]);
     render();
   });
+  // Ctrl+Z / Ctrl+Shift+Z (or Ctrl+Y) anywhere in the editor but in a text field.
+  panel.addEventListener("keydown", (e) => {
+    if (!(e.ctrlKey || e.metaKey) || e.altKey) return;
+    if (e.target.matches("input[type=text], input[type=number], textarea")) return;
+    const k = e.key.toLowerCase();
+    if (k === "z" && !e.shiftKey) {
+      e.preventDefault();
+      undo();
+    } else if ((k === "z" && e.shiftKey) || k === "y") {
+      e.preventDefault();
+      redo();
+    }
+  });
   function turn(dAz, dEl) {
     st.camera = {
       azimuth_deg: ((st.camera.azimuth_deg + dAz) % 360 + 360) % 360,
@@ -255,12 +271,8 @@ export function initEditor(panel, spec) {
     el("h2", {}, "Cloud editor"),
     el("p", {}, "Create a scene from a volume, then edit it on the image: paint where the sunlit cloud should take a colour (the sun colour follows by least squares), paint ambient colour into the shadows, or drag from a shadowed spot to where its shadow should be (the sun moves). Every edit is a new version; undo selects an older one."),
     el("div", { class: "layout" },
-      el("div", {}, input,
-        el("h3", {}, "Versions (", count, ")"),
-        el("div", { class: "toolbar" }, undoBtn, redoBtn),
-        versions,
-        el("h3", {}, "State"), stateBox),
-      el("div", {},
+      el("div", { class: "area-in" }, input),
+      el("div", { class: "area-out" },
         el("div", { class: "toolbar" },
           el("fieldset", {}, el("legend", {}, "Tool"),
             tool("sun-color", "Sun-colour brush", sunColor),
@@ -268,7 +280,12 @@ export function initEditor(panel, spec) {
             tool("sun-direction", "Shadow drag"),
             tool("orbit", "Orbit camera"))),
         bar, status,
-        el("div", { class: "stage" }, img, canvas))));
+        el("div", { class: "stage" }, img, canvas)),
+      el("div", { class: "area-more" },
+        el("h3", {}, "Versions (", count, ")"),
+        el("div", { class: "toolbar" }, undoBtn, redoBtn),
+        versions,
+        el("h3", {}, "State"), stateBox)));
   $("#sun-color", panel).setAttribute("aria-label", "Sun colour");
   $("#ambient-color", panel).setAttribute("aria-label", "Ambient colour");
 }

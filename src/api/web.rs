@@ -37,6 +37,11 @@ const FILES: &[(&str, &str, &[u8])] = &[
         include_bytes!("../../web/cloud.js"),
     ),
     (
+        "form.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("../../web/form.js"),
+    ),
+    (
         "style.css",
         "text/css; charset=utf-8",
         include_bytes!("../../web/style.css"),

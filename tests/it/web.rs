@@ -29,6 +29,7 @@ async fn page_files_are_served_with_their_types() {
         ("app.js", "text/javascript; charset=utf-8"),
         ("yaml.js", "text/javascript; charset=utf-8"),
         ("cloud.js", "text/javascript; charset=utf-8"),
+        ("form.js", "text/javascript; charset=utf-8"),
         ("style.css", "text/css; charset=utf-8"),
     ] {
         let r = s
@@ -169,8 +170,10 @@ fn playwright_dir() -> PathBuf {
     dir
 }
 
-/// The page in headless Chromium: upload a DEM and re-render on a parameter change, the
-/// snow-cover progress bar, the cloud editor's sun-colour stroke, shadow drag and undo, a
+/// The page in headless Chromium: upload a DEM and re-render on a parameter change, keyboard
+/// and mouse orbit, the sweep sheet, a readable 422, structured parameters (schedule, wind,
+/// layers, colours, bounds), the snow-cover progress bar, the cloud editor's sun-colour and
+/// ambient strokes, shadow drag, undo and redo, the dust close-up, phone and laptop layouts, a
 /// download — no console errors, no request beyond the server. Screenshots go to
 /// `target/browser/`. Needs Debian's `chromium` (`apt-get install -y chromium`, done by
 /// `.ci/run`) and npm (playwright-core is installed into `target/browser-node/` on first use).
