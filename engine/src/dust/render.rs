@@ -43,6 +43,7 @@
 //! fragments in front of the base; the base depth pass (4 B per pixel), the overlay (8 B per
 //! pixel) and the per-pixel cache (10 B per pixel). Triangles whose corners all have D < i / shells are left out of layer i.
 
+use crate::geom::unit;
 use rayon::prelude::*;
 
 use super::mapping::Mapping;
@@ -361,14 +362,5 @@ impl PixelCache {
     #[inline]
     fn level(&self) -> f32 {
         f32::from(self.level) / 256.0
-    }
-}
-
-fn unit(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 && l.is_finite() {
-        v.map(|c| c / l)
-    } else {
-        [0.0; 3]
     }
 }

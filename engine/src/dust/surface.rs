@@ -33,6 +33,7 @@
 //! Cost: O(Σ valence²) comparisons, parallel over nothing (one pass); allocates a copy of the mesh
 //! (plus one vertex per extra group) and the per-vertex incidence lists (8 B per corner).
 
+use crate::geom::unit;
 use crate::geom::Mesh;
 
 /// Faces meeting at a vertex at less than this angle share its normal.
@@ -308,13 +309,4 @@ pub fn crease_split(mesh: &Mesh, u: [f32; 3]) -> (Mesh, Vec<[f32; 3]>) {
         parts: mesh.parts.clone(),
     };
     (out, normals)
-}
-
-fn unit(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 && l.is_finite() {
-        v.map(|c| c / l)
-    } else {
-        [0.0; 3]
-    }
 }

@@ -32,6 +32,7 @@
 //! normals and albedo; 72 B more per triangle while the shadow map is built), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
 //! Shadow pass: O(bands × triangles) bounding-box tests plus the covered texels.
 
+use crate::geom::unit;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
@@ -210,15 +211,6 @@ fn merge(instances: &[MeshInstance]) -> Scene {
         }
     }
     s
-}
-
-fn unit(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 && l.is_finite() {
-        v.map(|c| c / l)
-    } else {
-        [0.0; 3]
-    }
 }
 
 /// An orthographic depth map along the sun: texel (i, j) holds the largest `dot(p, sun)` of the
