@@ -175,12 +175,28 @@ function pipelineTab(panel, name, spec) {
   const schema = spec.components.schemas[cfg.schema];
   const cameraSchema = resolve(spec, spec.components.schemas.Camera).properties;
   const state = { asset: null, timer: 0, follow: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null };
-  const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
+  const status = el("p", { class: "status", role: "status", "aria-live": "polite", id: `status-${name}` });
   const bar = el("progress", { max: 1, value: 0, "aria-label": `${name} progress` });
+  // After a refused or invalid change the last results stay, marked out of date (dimmed, a
+  // label, and the images described by the label and the error) until the next success.
+  const staleNote = el("p", { class: "stale-note", id: `stale-${name}`, hidden: true },
+    "Out of date: the results below are the last successful ones, not of the current parameters (see the message above).");
   const views = el("div", { class: "views" });
   const downloads = el("ul", { class: "downloads", "aria-label": "Downloads" });
   const quick = el("input", { type: "checkbox", id: `quick-${name}`, checked: true });
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
+  const stale = (on) => {
+    on = on && views.childElementCount > 0;
+    views.classList.toggle("stale", on);
+    staleNote.hidden = !on;
+    if (on) panel.dataset.stale = "true";
+    else delete panel.dataset.stale;
+    for (const i of views.querySelectorAll("img")) {
+      if (on) i.setAttribute("aria-describedby", `${staleNote.id} ${status.id}`);
+      else i.removeAttribute("aria-describedby");
+    }
+  };
+  const refuse = (m) => { error(m); stale(true); };
 
   const { form, values, widgets, mark } = buildForm(spec, schema, name, () => schedule());
   quick.addEventListener("change", () => schedule());
@@ -263,7 +279,7 @@ function pipelineTab(panel, name, spec) {
     if (state.follow) state.follow.close();
     status.classList.remove("error");
     const { params: p, bad } = params();
-    if (bad) return error(`Not sent: fix ${bad.join(", ")} (a number out of its range, or an incomplete value).`);
+    if (bad) return refuse(`Not sent: fix ${bad.join(", ")} (a number out of its range, or an incomplete value).`);
     mark(null);
     status.textContent = "Submitting…";
     bar.value = 0;
@@ -277,7 +293,7 @@ function pipelineTab(panel, name, spec) {
       if (seq !== state.seq) return;
       if (pr.field) mark(pr.field.replace(/^params\./, "").split(/[.[]/)[0]);
       panel.dataset.status = "rejected";
-      return error(pr.message);
+      return refuse(pr.message);
     }
     const job = await resp.json();
     panel.dataset.job = job.id;
@@ -292,7 +308,7 @@ function pipelineTab(panel, name, spec) {
     try {
       done = await state.follow.job;
     } catch (e) {
-      return error(e.message);
+      return refuse(e.message);
     }
     if (seq !== state.seq) return;
     await show(done, p);
@@ -301,7 +317,7 @@ function pipelineTab(panel, name, spec) {
   async function show(job, sent) {
     if (job.status !== "succeeded") {
       panel.dataset.status = job.status;
-      return error(job.error ? `${job.error.title}: ${job.error.detail}` : `job ${job.status}`);
+      return refuse(job.error ? `${job.error.title}: ${job.error.detail}` : `job ${job.status}`);
     }
     if (job.params && job.params.camera) state.resolvedCamera = job.params.camera;
     if (closeUp && state.size === null) {
@@ -339,6 +355,7 @@ function pipelineTab(panel, name, spec) {
       views.append(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
         el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "full size")])));
     }
+    stale(false);
     panel.dataset.status = job.status;
   }
 
@@ -397,7 +414,7 @@ function pipelineTab(panel, name, spec) {
       el("div", { class: "area-in" }, input,
         el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
         sweep ? sweep.box : null),
-      el("div", { class: "area-out" }, bar, status, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),
+      el("div", { class: "area-out" }, bar, status, staleNote, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),
       el("div", { class: "area-more" }, form)));
 }
 

@@ -1,7 +1,8 @@
 // The cloud editor (SPEC §3, "Editing"): a scene kept on the server, edited on the image of a
 // view with the paper's three modes — a sun-colour brush (§3.1), an ambient brush (§3.2) and a
 // shadow drag (§3.3) — plus camera orbit and a version history whose undo/redo selects versions
-// (versions are immutable on the server; undo is rendering or editing an older one).
+// (versions are immutable on the server; undo is rendering or editing an older one). Every tool
+// works from the keyboard too: a crosshair on the focused image (keys in the help text below it).
 
 import { $, el, problem, uploadAsset, followJob, inputBox } from "./app.js";
 
@@ -12,6 +13,18 @@ const VIEW_H = 300;
 const BRUSH = 4;
 /** At most this many painted pixels per stroke. */
 const MAX_PIXELS = 4000;
+/** Keyboard cursor steps, image pixels (with Shift: the big one). */
+const STEP = 4;
+const BIG_STEP = 20;
+/** The tools in the order of their number keys. */
+const TOOLS = ["sun-color", "ambient", "sun-direction", "orbit"];
+/** The editor image's keys (aria-keyshortcuts). */
+const KEYS = [
+  "1", "2", "3", "4",
+  "ArrowLeft", "ArrowRight", "ArrowUp", "ArrowDown",
+  "Shift+ArrowLeft", "Shift+ArrowRight", "Shift+ArrowUp", "Shift+ArrowDown",
+  "Home", "Space", "Enter", "C", "Escape",
+];
 
 export function initEditor(panel, spec) {
   const cam = spec.components.schemas.Camera.properties;
@@ -26,7 +39,21 @@ export function initEditor(panel, spec) {
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
   const bar = el("progress", { max: 1, value: 0, "aria-label": "cloud editor progress" });
   const img = el("img", { alt: "The current version of the cloud", width: VIEW_W, height: VIEW_H, id: "editor-image" });
-  const canvas = el("canvas", { width: VIEW_W, height: VIEW_H, tabindex: 0, "aria-label": "Paint or drag on the cloud with the selected tool; arrow keys orbit the camera" });
+  const canvas = el("canvas", {
+    width: VIEW_W, height: VIEW_H, tabindex: 0, id: "editor-canvas",
+    "aria-label": "Cloud image: paint or drag on it with the selected tool, with the pointer or the keyboard",
+    "aria-describedby": "editor-keys",
+    "aria-keyshortcuts": KEYS.join(" "),
+  });
+  // The keyboard cursor: a crosshair (with the brush's size) over the image, shown while the
+  // image has focus.
+  const cursor = el("div", { class: "kbd-cursor", "aria-hidden": "true" });
+  const help = el("p", { class: "keys", id: "editor-keys" },
+    "Keyboard, with the image focused: ", el("kbd", {}, "1"), "–", el("kbd", {}, "4"), " pick the tool (sun-colour brush, ambient brush, shadow drag, orbit); ",
+    "the arrow keys move the crosshair (", el("kbd", {}, "Shift"), " for bigger steps; ", el("kbd", {}, "Home"), " centres it), or orbit the camera with the orbit tool; ",
+    "brushes: ", el("kbd", {}, "Space"), " or ", el("kbd", {}, "Enter"), " paints at the crosshair (hold it while moving to paint a line), ",
+    el("kbd", {}, "C"), " applies the stroke; shadow drag: ", el("kbd", {}, "Space"), " or ", el("kbd", {}, "Enter"), " marks the shadowed spot, again marks where its shadow should be; ",
+    el("kbd", {}, "Esc"), " discards; ", el("kbd", {}, "Ctrl+Z"), " / ", el("kbd", {}, "Ctrl+Shift+Z"), " undo and redo.");
   const ctx = canvas.getContext("2d");
   const versions = el("ul", { class: "versions", "aria-label": "Versions" });
   const count = el("span", { id: "version-count" }, "0");
@@ -40,7 +67,7 @@ export function initEditor(panel, spec) {
 
   const tool = (value, label, extra) => {
     const id = `tool-${value}`;
-    const r = el("input", { type: "radio", name: "tool", id, value, checked: value === st.tool, onchange: () => { st.tool = value; } });
+    const r = el("input", { type: "radio", name: "tool", id, value, checked: value === st.tool, onchange: () => setTool(value) });
     return el("span", {}, r, " ", el("label", { for: id }, label), extra ? [" ", extra] : []);
   };
 
@@ -157,7 +184,9 @@ export function initEditor(panel, spec) {
     }
   }
 
-  // Pointer input on the overlay, in image pixels.
+  // Input on the overlay, in image pixels. A pointer drag and the keyboard build the same
+  // `drag` (start, last point, painted pixels) and end it through the same commit, so both
+  // send the same requests.
   const at = (e) => {
     const b = canvas.getBoundingClientRect();
     return [
@@ -166,6 +195,7 @@ export function initEditor(panel, spec) {
     ];
   };
   let drag = null;
+  const brush = () => st.tool === "sun-color" || st.tool === "ambient";
   const paint = (p) => {
     const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
     ctx.fillStyle = color + "aa";
@@ -188,51 +218,163 @@ export function initEditor(panel, spec) {
     }
     drag.last = p;
   };
+  const shadowLine = (from, to) => {
+    ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+    ctx.strokeStyle = "#ff3030";
+    ctx.fillStyle = "#ff3030";
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.arc(from[0], from[1], 3, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.beginPath();
+    ctx.moveTo(from[0], from[1]);
+    ctx.lineTo(to[0], to[1]);
+    ctx.stroke();
+  };
+  /** Ends a drag at `p`: sends the stroke or the shadow drag (false if there was nothing to send). */
+  const commit = (d, p) => {
+    if (brush()) {
+      if (!d.pixels.size) return false;
+      const pixels = [...d.pixels].map((i) => [i % VIEW_W, Math.floor(i / VIEW_W)]);
+      const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
+      edit(st.tool, { strokes: [{ color, pixels }] });
+      return true;
+    }
+    if (st.tool === "sun-direction") {
+      if (Math.hypot(p[0] - d.start[0], p[1] - d.start[1]) < 2) return false;
+      edit("sun-direction", { from: d.start.map(Math.round), to: p.map(Math.round) });
+      return true;
+    }
+    return false;
+  };
+  const discard = (why) => {
+    if (!drag) return;
+    drag = null;
+    ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+    if (why) note(why);
+  };
+  function setTool(value) {
+    if (drag && drag.keys) discard(`Discarded the unfinished ${drag.tool === "sun-direction" ? "shadow drag" : "stroke"}.`);
+    st.tool = value;
+    const r = $(`#tool-${value}`, panel);
+    if (r) r.checked = true;
+    placeCursor();
+  }
+
   canvas.addEventListener("pointerdown", (e) => {
     if (!st.scene || st.busy) return;
     e.preventDefault();
     canvas.setPointerCapture(e.pointerId);
-    drag = { start: at(e), last: null, pixels: new Set(), client: [e.clientX, e.clientY] };
-    if (st.tool === "sun-color" || st.tool === "ambient") paint(drag.start);
+    discard();
+    drag = { start: at(e), last: null, pixels: new Set(), client: [e.clientX, e.clientY], tool: st.tool };
+    kbd.pos = drag.start.map(Math.round);
+    placeCursor();
+    if (brush()) paint(drag.start);
   });
   canvas.addEventListener("pointermove", (e) => {
-    if (!drag) return;
+    if (!drag || drag.keys) return;
     const p = at(e);
-    if (st.tool === "sun-color" || st.tool === "ambient") paint(p);
-    else if (st.tool === "sun-direction") {
-      ctx.clearRect(0, 0, VIEW_W, VIEW_H);
-      ctx.strokeStyle = "#ff3030";
-      ctx.lineWidth = 2;
-      ctx.beginPath();
-      ctx.moveTo(drag.start[0], drag.start[1]);
-      ctx.lineTo(p[0], p[1]);
-      ctx.stroke();
-    }
+    if (brush()) paint(p);
+    else if (st.tool === "sun-direction") shadowLine(drag.start, p);
   });
   canvas.addEventListener("pointerup", (e) => {
-    if (!drag) return;
+    if (!drag || drag.keys) return;
     const d = drag;
     drag = null;
     const p = at(e);
-    if (st.tool === "sun-color" || st.tool === "ambient") {
-      const pixels = [...d.pixels].map((i) => [i % VIEW_W, Math.floor(i / VIEW_W)]);
-      const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
-      edit(st.tool, { strokes: [{ color, pixels }] });
-    } else if (st.tool === "sun-direction") {
-      if (Math.hypot(p[0] - d.start[0], p[1] - d.start[1]) < 2) return;
-      edit("sun-direction", { from: d.start.map(Math.round), to: p.map(Math.round) });
-    } else {
+    kbd.pos = p.map(Math.round);
+    placeCursor();
+    if (st.tool === "orbit") {
       turn(-(e.clientX - d.client[0]) * 0.5, (e.clientY - d.client[1]) * 0.3);
       render();
+    } else commit(d, p);
+  });
+
+  // The keyboard: a crosshair moved by the arrow keys; Space/Enter paint (held: along the
+  // way) or mark the shadow drag's ends; C applies a stroke; Escape discards.
+  const kbd = { pos: [VIEW_W / 2, VIEW_H / 2], pen: false };
+  function placeCursor() {
+    cursor.style.left = `${(kbd.pos[0] / VIEW_W) * 100}%`;
+    cursor.style.top = `${(kbd.pos[1] / VIEW_H) * 100}%`;
+    cursor.style.width = cursor.style.height = `${((2 * BRUSH + 1) / VIEW_W) * 100}%`;
+    cursor.classList.toggle("brush", brush());
+  }
+  placeCursor();
+  const where = () => `${kbd.pos[0]}, ${kbd.pos[1]}`;
+  const keyDrag = () => {
+    if (!drag) drag = { start: [...kbd.pos], last: null, pixels: new Set(), keys: true, tool: st.tool };
+    return drag;
+  };
+  canvas.addEventListener("keydown", (e) => {
+    if (e.ctrlKey || e.metaKey || e.altKey) return;
+    const arrow = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, -1], ArrowDown: [0, 1] }[e.key];
+    const key = e.key === " " ? "Space" : e.key.length === 1 ? e.key.toUpperCase() : e.key;
+    const n = /^[1-4]$/.test(key) ? Number(key) - 1 : -1;
+    if (!arrow && !["Home", "Space", "Enter", "C", "Escape"].includes(key) && n < 0) return;
+    e.preventDefault();
+    if (n >= 0) {
+      setTool(TOOLS[n]);
+      return note(`Tool: ${$(`label[for=tool-${TOOLS[n]}]`, panel).textContent}.`);
+    }
+    if (!st.scene) return note("Create a scene first.");
+    if (key === "Escape") {
+      kbd.pen = false;
+      return drag ? discard(`Discarded the unfinished ${drag.tool === "sun-direction" ? "shadow drag" : "stroke"}.`) : undefined;
+    }
+    if (st.tool === "orbit") {
+      if (!arrow || st.busy) return;
+      turn(arrow[0] * 10, -arrow[1] * 5);
+      note(`Orbiting to azimuth ${st.camera.azimuth_deg}°, elevation ${st.camera.elevation_deg}°…`);
+      return render();
+    }
+    if (arrow || key === "Home") {
+      const k = e.shiftKey ? BIG_STEP : STEP;
+      kbd.pos = key === "Home" ? [VIEW_W / 2, VIEW_H / 2] : [
+        Math.max(0, Math.min(VIEW_W - 1, kbd.pos[0] + arrow[0] * k)),
+        Math.max(0, Math.min(VIEW_H - 1, kbd.pos[1] + arrow[1] * k)),
+      ];
+      placeCursor();
+      if (kbd.pen && drag && drag.keys && brush()) {
+        paint([...kbd.pos]);
+        return note(`Painting at ${where()} (${drag.pixels.size} pixels).`);
+      }
+      if (drag && drag.keys && st.tool === "sun-direction") shadowLine(drag.start, kbd.pos);
+      return note(`Crosshair at ${where()}.`);
+    }
+    if (st.busy) return note("Busy: wait for the current edit or render.");
+    if (key === "C") {
+      if (!drag || !drag.keys || !brush()) return note("Nothing to apply: paint with Space or Enter first.");
+      const d = drag;
+      drag = null;
+      kbd.pen = false;
+      if (!commit(d, kbd.pos)) note("Nothing to apply.");
+      return;
+    }
+    // Space / Enter.
+    if (brush()) {
+      const d = keyDrag();
+      if (!kbd.pen) d.last = null; // a new dab, not a line from the last one
+      kbd.pen = true;
+      paint([...kbd.pos]);
+      return e.repeat ? undefined : note(`Painted at ${where()} (${d.pixels.size} pixels in the stroke; C applies it).`);
+    }
+    if (e.repeat) return;
+    if (!drag) {
+      keyDrag();
+      shadowLine(drag.start, kbd.pos);
+      return note(`Shadow drag from ${where()}: move to where the shadow should be and press Space or Enter again.`);
+    }
+    const d = drag;
+    drag = null;
+    if (!commit(d, kbd.pos)) {
+      ctx.clearRect(0, 0, VIEW_W, VIEW_H);
+      note("The shadow drag's ends are the same spot: discarded.");
     }
   });
-  canvas.addEventListener("keydown", (e) => {
-    const d = { ArrowLeft: [-10, 0], ArrowRight: [10, 0], ArrowUp: [0, 5], ArrowDown: [0, -5] }[e.key];
-    if (!d || !st.scene || st.busy) return;
-    e.preventDefault();
-    turn(d[0], d[1]);
-    render();
+  canvas.addEventListener("keyup", (e) => {
+    if (e.key === " " || e.key === "Enter") kbd.pen = false;
   });
+  canvas.addEventListener("blur", () => { kbd.pen = false; });
   // Ctrl+Z / Ctrl+Shift+Z (or Ctrl+Y) anywhere in the editor but in a text field.
   panel.addEventListener("keydown", (e) => {
     if (!(e.ctrlKey || e.metaKey) || e.altKey) return;
@@ -280,7 +422,7 @@ export function initEditor(panel, spec) {
             tool("sun-direction", "Shadow drag"),
             tool("orbit", "Orbit camera"))),
         bar, status,
-        el("div", { class: "stage" }, img, canvas)),
+        el("div", { class: "stage" }, img, canvas, cursor), help),
       el("div", { class: "area-more" },
         el("h3", {}, "Versions (", count, ")"),
         el("div", { class: "toolbar" }, undoBtn, redoBtn),

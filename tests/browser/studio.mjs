@@ -7,13 +7,16 @@
 // Steps (screenshots of each under SCREENSHOT_DIR): the page loads; upload a DEM, change a
 // parameter, see the image change; orbit with the arrow keys and by dragging the render with the
 // mouse; a parameter sweep shows sweep.png beside the render and the snow-cover map; an eye/target
-// camera the API refuses shows a readable 422 naming the field; download outputs and check their
+// camera the API refuses shows a readable 422 naming the field, the old images marked out of
+// date (dimmed, labelled, described by the error) until the next success; download outputs and check their
 // bytes; the snow-cover example runs with a snowfall schedule, a wind and a time-lapse, the
 // progress bar moving and finishing; the cloud tab posts layers, a background, a sun-colour triple
 // and a world box; in the cloud editor paint a sun-colour stroke (version count and image
 // change), drag a shadow (the sun direction in the state changes), undo (back to the previous
 // version and its image), redo (forward again), paint an ambient stroke (a new version and
-// image); the dust example runs with its render, fibre atlas and amount map, and the close-up
+// image), Ctrl+Z / Ctrl+Shift+Z, then with the keyboard only paint a sun-colour stroke (a new
+// version, a changed image, the same request fields as the pointer's) and do a shadow drag (the
+// sun direction changes); the dust example runs with its render, fibre atlas and amount map, and the close-up
 // toggle changes the image with the far view beside it; every tab at 390×844 (no horizontal
 // overflow) and 1366×768. Fails on any console error (but the deliberate 422's failed load),
 // page error, or request to anything but the server.
@@ -66,8 +69,12 @@ try {
     problems.push(`console error: ${m.text()}`);
   });
   page.on("pageerror", (e) => problems.push(`page error: ${e.message}`));
+  // The cloud editor's edit requests, to compare the keyboard's with the pointer's.
+  const edits = [];
   page.on("request", (r) => {
     if (!r.url().startsWith(base) && !r.url().startsWith("data:")) problems.push(`request beyond the server: ${r.url()}`);
+    const m = r.method() === "POST" && r.url().match(/\/edits\/([a-z-]+)$/);
+    if (m) edits.push({ kind: m[1], body: JSON.parse(r.postData()) });
   });
   const shot = (name) => page.screenshot({ path: path.join(shots, `${name}.png`), fullPage: true });
   const bytesOf = (url) => page.evaluate(async (u) => {
@@ -195,11 +202,25 @@ try {
   assert.match(refused, /422/, `no readable 422: ${refused}`);
   assert.match(refused, /camera|eye|target/, `the 422 does not say what is wrong: ${refused}`);
   assert.equal(await st.locator(".field[data-name=camera]").evaluate((f) => f.classList.contains("invalid")), true, "the camera field is not marked");
+  // The last good images stay, marked out of date and described by the error.
+  const staleImg = st.locator("img[data-output='render.png']");
+  assert.equal(await st.getAttribute("data-stale"), "true", "the old images are not marked stale after the 422");
+  assert.equal(await st.locator(".views").evaluate((v) => v.classList.contains("stale")), true);
+  assert.ok(await st.locator(".stale-note").isVisible(), "no visible out-of-date label");
+  assert.match(await st.locator(".stale-note").textContent(), /out of date/i);
+  const described = (await staleImg.getAttribute("aria-describedby") || "").split(" ");
+  assert.ok(described.includes("status-snow-terrain") && described.includes("stale-snow-terrain"), `the stale image is not described by the error: ${described}`);
+  assert.ok(Number(await staleImg.evaluate((i) => getComputedStyle(i).opacity)) < 0.6, "the stale image is not dimmed");
   await shot("03e-terrain-422");
   log(`refused: ${refused}`);
   await cameraKind.selectOption("orbit");
   expect422 = null;
   await page.waitForFunction(() => document.getElementById("panel-snow-terrain").dataset.status === "succeeded");
+  assert.equal(await st.getAttribute("data-stale"), null, "the stale mark stayed after a success");
+  assert.equal(await st.locator(".stale-note").isVisible(), false, "the out-of-date label stayed after a success");
+  assert.equal(await staleImg.getAttribute("aria-describedby"), null);
+  assert.equal(await st.locator(".views").evaluate((v) => v.classList.contains("stale")), false);
+  log("the old images were marked out of date until the next success");
 
 
   // Download an output and check its bytes (a PNG, a GeoTIFF).
@@ -403,6 +424,76 @@ try {
   });
   assert.equal(await hashOf(await ed.getAttribute("data-image")), await hashOf(v4Image), "Ctrl+Shift+Z did not return to version 4");
   log("Ctrl+Z / Ctrl+Shift+Z undo and redo");
+
+  // The keyboard only: on the focused image, 1 picks the sun-colour brush, the arrow keys move
+  // the crosshair, Space held paints along the way, C applies the stroke: version 5.
+  const edStatus = () => ed.locator("p.status").textContent();
+  const ks = await ed.locator("canvas").getAttribute("aria-keyshortcuts");
+  for (const k of ["ArrowLeft", "Shift+ArrowLeft", "Home", "Space", "Enter", "C", "Escape", "1"]) assert.ok(ks.split(" ").includes(k), `aria-keyshortcuts lacks ${k}: ${ks}`);
+  assert.match(await ed.locator("#editor-keys").textContent(), /arrow keys move the crosshair/);
+  await page.fill("#sun-color", "#3080ff");
+  await ed.locator("canvas").focus();
+  await page.keyboard.press("1");
+  assert.equal(await page.isChecked("#tool-sun-color"), true, "1 did not pick the sun-colour brush");
+  assert.ok(await ed.locator(".kbd-cursor").isVisible(), "no crosshair on the focused image");
+  // Home centres the crosshair (200, 150); to (180, 146), then paint 12 steps right.
+  await page.keyboard.press("Home");
+  await page.keyboard.press("Shift+ArrowLeft");
+  await page.keyboard.press("ArrowUp");
+  assert.match(await edStatus(), /180, 146/, "the crosshair move was not announced");
+  await page.keyboard.down(" ");
+  for (let i = 0; i < 12; i++) await page.keyboard.press("ArrowRight");
+  await page.keyboard.up(" ");
+  assert.match(await edStatus(), /Painting at 228, 146/);
+  await shot("08d-editor-keyboard-stroke");
+  const before5 = edits.length;
+  await page.keyboard.press("c");
+  await page.waitForFunction(() => {
+    const p = document.getElementById("panel-editor");
+    return p.dataset.versions === "5" && p.dataset.current === "5" && p.dataset.busy === "false" && document.getElementById("editor-image").complete;
+  });
+  const v5Image = await ed.getAttribute("data-image");
+  assert.notEqual(await hashOf(v5Image), await hashOf(v4Image), "the keyboard stroke changed no pixel");
+  assert.match(await edStatus(), /v5 \(sun-color\) is ready/);
+  // The same request as the pointer's: same fields, one stroke of the brush's pixels.
+  const mouseStroke = edits.find((e) => e.kind === "sun-color");
+  const keyStroke = edits[before5];
+  assert.equal(keyStroke.kind, "sun-color");
+  assert.deepEqual(Object.keys(keyStroke.body).sort(), Object.keys(mouseStroke.body).sort());
+  assert.equal(keyStroke.body.base_version, 4);
+  assert.equal(keyStroke.body.strokes[0].color, "#3080ff");
+  assert.ok(keyStroke.body.strokes[0].pixels.length > 12 * 4, `too few painted pixels: ${keyStroke.body.strokes[0].pixels.length}`);
+  const stateV5 = JSON.parse(await ed.locator("pre.state").textContent());
+  log(`keyboard stroke made version 5, sun colour ${JSON.stringify(stateV5.sun_color)}`);
+
+  // Shadow drag by keyboard: 3 picks it, Space marks the shadowed spot, Enter where its shadow
+  // should be: version 6 with another sun direction.
+  await page.keyboard.press("3");
+  assert.equal(await page.isChecked("#tool-sun-direction"), true, "3 did not pick the shadow drag");
+  for (let i = 0; i < 7; i++) await page.keyboard.press("ArrowLeft"); // (200, 146)
+  await page.keyboard.press("Shift+ArrowDown"); // (200, 166)
+  await page.keyboard.press("ArrowDown");
+  await page.keyboard.press("ArrowDown"); // (200, 174)
+  await page.keyboard.press("Space");
+  assert.match(await edStatus(), /Shadow drag from 200, 174/);
+  await page.keyboard.press("Shift+ArrowRight");
+  await page.keyboard.press("ArrowRight");
+  await page.keyboard.press("ArrowRight");
+  await page.keyboard.press("Shift+ArrowDown"); // (228, 194)
+  await shot("08e-editor-keyboard-shadow");
+  await page.keyboard.press("Enter");
+  await page.waitForFunction(() => {
+    const p = document.getElementById("panel-editor");
+    return p.dataset.versions === "6" && p.dataset.busy === "false" && !p.querySelector(".versions").textContent.includes("pending");
+  });
+  assert.equal(await ed.getAttribute("data-current"), "6", `the keyboard shadow drag did not make v6 current: ${await edStatus()}`);
+  const keyDrag = edits[edits.length - 1];
+  assert.deepEqual(keyDrag.body.from, [200, 174]);
+  assert.deepEqual(keyDrag.body.to, [228, 194]);
+  assert.deepEqual(Object.keys(keyDrag.body).sort(), Object.keys(edits.find((e) => e.kind === "sun-direction").body).sort());
+  const stateV6 = JSON.parse(await ed.locator("pre.state").textContent());
+  assert.notDeepEqual(stateV6.sun_direction, stateV5.sun_direction, "the keyboard shadow drag did not change the sun direction");
+  log(`keyboard shadow drag: sun direction ${JSON.stringify(stateV5.sun_direction)} -> ${JSON.stringify(stateV6.sun_direction)}`);
 
   // 5. Dust: the example mesh, small textures; the render and the fibre atlas show.
   await page.click("#tab-dust");
