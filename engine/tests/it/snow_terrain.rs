@@ -343,6 +343,22 @@ fn timings() {
     for (name, v) in &mut stages {
         println!("  {name:<10} {:7.2} ms (median)", median(v));
     }
+    // The same DEM to the 900×600 image alone (`outputs: ["render.png"]`: descriptor, colour,
+    // render, PNG; what a preview asks for, and the paper's measurement).
+    let p_img = params(json!({"width": 900, "height": 600, "outputs": ["render.png"]}));
+    let mut walls = Vec::new();
+    let c0 = cpu_ms();
+    for _ in 0..reps {
+        let t = Instant::now();
+        let outs = run(&paper, &p_img, &NoControl).unwrap();
+        walls.push(t.elapsed().as_secs_f64() * 1e3);
+        assert_eq!(outs.len(), 2);
+    }
+    let cpu = (cpu_ms() - c0) / f64::from(reps);
+    println!(
+        "paper 400x200 -> 900x600 image only (outputs: [render.png]): median {:.1} ms wall, {cpu:.1} ms cpu/run",
+        median(&mut walls)
+    );
     if std::env::var("SNOW_TIMINGS_4096").is_ok_and(|v| v == "0") {
         return;
     }
