@@ -5,13 +5,14 @@
 //! 128³ and 256³, because no real volume we ship is that large.
 //!
 //! Baseline for the ambient solve: the same SPD system (the symmetric LLW Laplacian with the
-//! pins as Dirichlet values) in a CSR matrix, solved by Jacobi-preconditioned conjugate
-//! gradients written here (no sparse crate: none was in the local registry cache, and a plain CG
-//! over CSR is what such a crate would run).
+//! pins as Dirichlet values) in a CSR matrix, solved by Jacobi-preconditioned conjugate gradients
+//! written here. Rejected as the bench's baseline: sprs 0.11.6's BiCGSTAB (the general solver
+//! from a crate that the issue suggests; unpreconditioned, sparse-vector arithmetic), which did
+//! not finish one 32³ solve in 400 s (session 4), so a criterion run of it cannot complete.
 //!
-//! Run: `cargo bench --bench cloud` (a few minutes on 2 cores). `CLOUD_BENCH_BIG=1` adds the
-//! 128³ and 256³ ambient solves and their CG baselines (each run takes from tens of seconds to
-//! minutes).
+//! Run: `cargo bench --bench cloud` (a few minutes on 2 cores; ambient solves at 32³ and 64³).
+//! `CLOUD_BENCH_BIG=1` adds the 128³ and 256³ solves with their CG baselines (each run takes from
+//! tens of seconds to minutes).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
 #![allow(clippy::needless_range_loop)]
 
@@ -166,9 +167,17 @@ fn neighbours(dims: [usize; 3], x: usize, y: usize, z: usize) -> [Option<usize>;
     ]
 }
 
-/// Baseline: CSR matrix of the same system (free voxels only) and Jacobi-preconditioned CG per
-/// channel to the same relative residual. Returns the iterations of the slowest channel.
-fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64) -> usize {
+/// Baseline input: the ambient system over the free (unpinned) voxels in CSR: (indptr, indices, data, right-hand
+/// sides per channel, diagonal).
+struct LlwCsr {
+    indptr: Vec<usize>,
+    indices: Vec<usize>,
+    data: Vec<f64>,
+    b: Vec<[f64; 3]>,
+    diag: Vec<f64>,
+}
+
+fn llw_csr(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])]) -> LlwCsr {
     let n = guide.len();
     let a = llw_weights(dims, guide);
     let mut pin = vec![None; n];
@@ -211,7 +220,27 @@ fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64)
         }
         indptr.push(indices.len());
     }
-    let m = free.len();
+    LlwCsr {
+        indptr,
+        indices,
+        data,
+        b,
+        diag,
+    }
+}
+
+/// Jacobi-preconditioned CG on the CSR system (module doc); returns the most iterations a
+/// channel took.
+fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64) -> usize {
+    let LlwCsr {
+        indptr,
+        indices,
+        data,
+        b,
+        diag,
+    } = llw_csr(dims, guide, pins);
+
+    let m = b.len();
     let spmv = |x: &[f64], y: &mut [f64]| {
         for r in 0..m {
             let mut s = 0.0;
@@ -264,8 +293,9 @@ fn csr_cg(dims: [usize; 3], guide: &[f32], pins: &[(usize, [f32; 3])], tol: f64)
 fn bench_ambient(c: &mut Criterion) {
     let mut g = c.benchmark_group("cloud");
     g.sample_size(10).measurement_time(Duration::from_secs(30));
-    let mut sizes = vec![64];
-    if std::env::var("CLOUD_BENCH_BIG").as_deref() == Ok("1") {
+    let big = std::env::var("CLOUD_BENCH_BIG").as_deref() == Ok("1");
+    let mut sizes = vec![32, 64];
+    if big {
         sizes.extend([128, 256]);
     }
     for n in sizes {
