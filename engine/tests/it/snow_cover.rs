@@ -789,14 +789,6 @@ fn timings() {
         stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
     });
     println!("stabilize 1024², 1 m pile (disc r = 0.5 m): {t:.0} ms, {rep:?} (target ≤ 500)");
-    let mesh = table_scene();
-    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
-    maps.layers[0].probability.iter_mut().for_each(|p| *p = 1.0);
-    accumulate(&mut maps, 1.0);
-    let (t, rep) = best_of(1, || {
-        stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
-    });
-    println!("stabilize 1024² table scene, 1 m everywhere: {t:.0} ms, {rep:?}");
 
     // Animation: 12,646 triangles, two 200² maps, steps of accumulate + stabilize.
     let mut b = Builder::default();
@@ -827,6 +819,22 @@ fn timings() {
         rep.unconverged_steps,
         rep.timings
     );
+}
+
+/// 1 m of snow everywhere on a 1024² table scene, stabilized to convergence: minutes (the coarse
+/// levels treat the table's edge as a wall; session 2's note), so not part of `timings`:
+/// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture --exact snow_cover::stabilize_table_scene_everywhere`.
+#[test]
+#[ignore]
+fn stabilize_table_scene_everywhere() {
+    let mesh = table_scene();
+    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
+    maps.layers[0].probability.iter_mut().for_each(|p| *p = 1.0);
+    accumulate(&mut maps, 1.0);
+    let (t, rep) = best_of(1, || {
+        stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
+    });
+    println!("stabilize 1024² table scene, 1 m everywhere: {t:.0} ms, {rep:?}");
 }
 
 #[test]
