@@ -631,22 +631,7 @@ async fn retention_expires_finished_jobs_and_reclaims_blobs() {
         .await
         .unwrap();
     assert_eq!(job["status"], "succeeded");
-    let blob_count = |dir: &std::path::Path| walk(&dir.join("blobs"));
-    fn walk(p: &std::path::Path) -> usize {
-        std::fs::read_dir(p)
-            .map(|rd| {
-                rd.flatten()
-                    .map(|e| {
-                        if e.path().is_dir() {
-                            walk(&e.path())
-                        } else {
-                            1
-                        }
-                    })
-                    .sum()
-            })
-            .unwrap_or(0)
-    }
+    let blob_count = |dir: &std::path::Path| crate::common::count_files(&dir.join("blobs"));
     assert!(blob_count(s.dir.path()) >= 2);
     let t0 = std::time::Instant::now();
     loop {

@@ -8,13 +8,13 @@
 //! Needs nginx (`apt-get install nginx-light`; `.ci/run` installs it) and a Redis.
 
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::{json, Value};
 
 use crate::common::{redis_url, RedisPrefix};
 use crate::restart::{assert_same_as_cli, synthetic_npy, synthetic_npy_of};
-use crate::scale::{sse, wait_done, Replica};
+use crate::scale::{sse, submit_to, wait_done, Replica};
 
 /// nginx with the repository's `deploy/nginx.conf`; stopped when dropped.
 struct Nginx {
@@ -24,11 +24,7 @@ struct Nginx {
 
 impl Nginx {
     fn start(dir: &std::path::Path, upstreams: &[&str]) -> Self {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = crate::common::free_port();
         let conf =
             std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/nginx.conf"))
                 .unwrap();
@@ -61,14 +57,7 @@ impl Nginx {
             .stderr(Stdio::inherit())
             .spawn()
             .expect("nginx is installed (apt-get install nginx-light; .ci/run does)");
-        let t0 = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(10),
-                "nginx did not start"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        crate::common::wait_for_port(port, Duration::from_secs(10), "nginx");
         Nginx { child, port }
     }
 
@@ -121,20 +110,7 @@ async fn the_compose_load_balancer_config_serves_jobs_sse_and_uploads() {
     // A job long enough to report progress, submitted and followed through nginx.
     let input = synthetic_npy();
     let params = json!({"width": 960, "height": 540, "samples": 4, "cell_size": 30.0, "mesh_max_vertices": 20000});
-    let form = reqwest::multipart::Form::new()
-        .text("params", params.to_string())
-        .part(
-            "dem",
-            reqwest::multipart::Part::bytes(input.clone()).file_name("terrain.npy"),
-        );
-    let resp = c
-        .post(lb.url("/v1/snow-terrain"))
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(resp.status().as_u16(), 202);
-    let job: Value = resp.json().await.unwrap();
+    let job = submit_to(&c, &lb.url("/v1/snow-terrain"), &input, &params).await;
     let id = job["id"].as_str().unwrap().to_string();
     let events = tokio::time::timeout(
         Duration::from_secs(300),

@@ -77,18 +77,18 @@ impl Drop for Replica {
 }
 
 pub async fn submit(c: &reqwest::Client, r: &Replica, input: &[u8], params: &Value) -> Value {
+    submit_to(c, &r.url("/v1/snow-terrain"), input, params).await
+}
+
+/// Submits a snow-terrain job (multipart, `dem` part) to `url`; asserts 202; returns the job.
+pub async fn submit_to(c: &reqwest::Client, url: &str, input: &[u8], params: &Value) -> Value {
     let form = reqwest::multipart::Form::new()
         .text("params", params.to_string())
         .part(
             "dem",
             reqwest::multipart::Part::bytes(input.to_vec()).file_name("terrain.npy"),
         );
-    let resp = c
-        .post(r.url("/v1/snow-terrain"))
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
+    let resp = c.post(url).multipart(form).send().await.unwrap();
     assert_eq!(resp.status().as_u16(), 202);
     resp.json().await.unwrap()
 }
@@ -314,14 +314,7 @@ impl PrivateRedis {
             .stderr(Stdio::null())
             .spawn()
             .expect("redis-server is installed");
-        let t0 = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(10),
-                "redis did not start"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        crate::common::wait_for_port(port, Duration::from_secs(10), "redis");
         PrivateRedis {
             child,
             port,
@@ -349,11 +342,7 @@ impl Drop for PrivateRedis {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_redis_restart_during_idle_time_is_survived() {
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = crate::common::free_port();
     let redis_dir = dir.path().join("redis");
     std::fs::create_dir_all(&redis_dir).unwrap();
     let mut redis = PrivateRedis::start(port, &redis_dir);

@@ -10,7 +10,7 @@
 //! 'moto[server]'`; `.ci/run` installs it).
 
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::{json, Value};
 
@@ -144,24 +144,8 @@ async fn replicas_with_their_own_data_dirs_share_a_blob_directory() {
     replicas_share_blobs(&url, &[], true).await;
     // The blobs are in the shared directory, named by their digests.
     let blobs = shared.path().join("blobs/sha256");
-    let n = walk_files(&blobs);
+    let n = crate::common::count_files(&blobs);
     assert!(n >= 5, "{n} blobs in {}", blobs.display());
-}
-
-fn walk_files(dir: &std::path::Path) -> usize {
-    std::fs::read_dir(dir)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| {
-                    if e.path().is_dir() {
-                        walk_files(&e.path())
-                    } else {
-                        1
-                    }
-                })
-                .sum()
-        })
-        .unwrap_or(0)
 }
 
 /// moto's S3-compatible server on a loopback port; killed when dropped.
@@ -172,22 +156,14 @@ struct Moto {
 
 impl Moto {
     fn start() -> Self {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = crate::common::free_port();
         let child = Command::new("moto_server")
             .args(["-H", "127.0.0.1", "-p", &port.to_string()])
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
             .expect("moto_server is installed (pip install 'moto[server]'; .ci/run does)");
-        let t0 = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(t0.elapsed() < Duration::from_secs(30), "moto did not start");
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        crate::common::wait_for_port(port, Duration::from_secs(30), "moto");
         Moto { child, port }
     }
 }
