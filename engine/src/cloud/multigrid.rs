@@ -78,6 +78,7 @@ use rayon::prelude::*;
 use crate::{Canceled, Control};
 use aggregate::Prolongation;
 use dense::Dense;
+use fine::for_each_edge;
 use fine::{apply_fine, residual_fine, smooth_fine, Fine, Rgb};
 use graph::{Adjacency, Graph};
 pub use llw::llw_weights;
@@ -321,24 +322,7 @@ fn residual_of(fine: &Fine, x: &[[f64; 3]], out: &mut [Rgb]) -> f64 {
                             acc[q] += c * (x[n][q] - xi[q]);
                         }
                     };
-                    if x0 > 0 {
-                        edge(fine.a[i - 1][0], i - 1);
-                    }
-                    if x0 + 1 < nx {
-                        edge(fine.a[i][0], i + 1);
-                    }
-                    if y > 0 {
-                        edge(fine.a[i - nx][1], i - nx);
-                    }
-                    if y + 1 < ny {
-                        edge(fine.a[i][1], i + nx);
-                    }
-                    if z > 0 {
-                        edge(fine.a[i - plane][2], i - plane);
-                    }
-                    if z + 1 < nz {
-                        edge(fine.a[i][2], i + plane);
-                    }
+                    for_each_edge(&fine.a, [nx, ny, nz], [x0, y, z], i, &mut edge);
                     sq += acc.iter().map(|v| v * v).sum::<f64>();
                     o[j] = acc.map(|v| v as f32);
                 }
