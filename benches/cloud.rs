@@ -302,8 +302,16 @@ fn bench_ambient(c: &mut Criterion) {
         let (v, guide, pins) = ambient_problem(n);
         g.bench_function(format!("ambient_multigrid_{n}"), |b| {
             b.iter(|| {
-                let (_, st) =
-                    propagate(v.dims, &guide, &pins, SolveOptions::default(), &NoControl).unwrap();
+                let (_, st) = propagate(
+                    v.dims,
+                    &guide,
+                    Some(&v.density),
+                    &pins,
+                    &|_| [0.0; 3],
+                    SolveOptions::default(),
+                    &NoControl,
+                )
+                .unwrap();
                 assert!(*st.residuals.last().unwrap() <= 1e-6);
                 st.residuals.len()
             })

@@ -13,18 +13,23 @@
 //!   `a_rs = exp(−(Y_r − Y_s)²/c_rs)` are symmetric. LLW's equation `U_r = Σ_s a_rs U_s / Σ_s
 //!   a_rs` is then the graph-Laplacian system `Σ_s a_rs (U_r − U_s) = 0` — symmetric positive
 //!   definite with the pins as Dirichlet values — which conjugate gradients can accelerate.
-//! - *Unknowns*: every voxel, not only ρ > 0. Empty space then carries the guide too (lit air
-//!   has T ≈ 1 like lit cloud tops), disconnected puffs without a pin still get a colour, and
-//!   the grid stays a box. Pins are only set on ρ > 0 voxels by the ambient edit; the renderer
-//!   weights the field by ρ, so empty voxels' values never show.
+//! - *Unknowns*: the cloud voxels (ρ > 0) connected to a pin through the cloud — SPEC §3.2
+//!   propagates "to all cloud voxels". Empty voxels never show (the renderer weights the field
+//!   by ρ), and a puff no pin reaches has no equation fixing its colour; both keep a value the
+//!   caller gives (the ambient edit: what the base version showed there). Earlier sessions took
+//!   every voxel of the box as an unknown, so that lit air (T ≈ 1, like lit cloud tops) carried
+//!   colour between puffs; that made a typical cloud's system ~10× larger than its cloud (the
+//!   128³ cumulus: 10 % of the box) and let paint leak through the air into puffs it never
+//!   touched. A volume with density everywhere (smoke with a faint haze) is still a full box.
 //! - The three channels share the matrix and are solved in one pass (RGB triples per voxel);
 //!   conjugate gradients keep one step length per channel.
 //!
 //! # The solver
 //!
 //! Conjugate gradients preconditioned by one multigrid cycle per iteration:
-//! - *Fine level*: the 7-point LLW Laplacian, red–black Gauss–Seidel in place ([`fine`]), the
-//!   iterate in f64 and its true residual recomputed every iteration (so the reported figures
+//! - *Fine level*: the 7-point LLW Laplacian on the unknowns in compressed rows, numbered red
+//!   then black so that the multicolour Gauss–Seidel of every level is red–black there
+//!   ([`fine`]), the iterate in f64 and its true residual recomputed every iteration (so the reported figures
 //!   are the residuals of the returned field, not of a recurrence), the cycle in f32.
 //! - *Coarse levels*: smoothed aggregation ([`aggregate`]) — aggregates of strongly coupled
 //!   points, the prolongation their indicator smoothed by a damped Jacobi step of the filtered
@@ -36,9 +41,10 @@
 //!   restriction `Pᵀ`; below level 1 each coarse problem gets two cycles (a W-cycle there; the
 //!   fine level and level 1 are visited once). Symmetric, so a valid CG preconditioner.
 //!
-//! Measured (cumulus tests, default sun, κ = 40; `cloud_edit::multigrid_reaches_1e_6_*`): 1e-6
-//! in 7 (32³), 8 (64³) and 8 (128³) iterations, every iteration cutting the residual by at
-//! least 5.2× (the figures are per preconditioned CG iteration = per cycle).
+//! Measured (cumulus tests, default sun, κ = 40; `cloud_edit::multigrid_reaches_1e_6_*`, on
+//! the cloud voxels and on the whole box): 1e-6 in 7–8 iterations at 32³, 64³ and 128³, every
+//! iteration cutting the residual by at least 5× (the figures are per preconditioned CG
+//! iteration = per cycle).
 //!
 //! # Rejected designs (measured)
 //!
@@ -78,9 +84,8 @@ use rayon::prelude::*;
 use crate::{Canceled, Control};
 use aggregate::Prolongation;
 use dense::Dense;
-use fine::for_each_edge;
-use fine::{apply_fine, residual_fine, smooth_fine, Fine, Rgb};
-use graph::{Adjacency, Graph};
+use fine::{fine_level, Rgb};
+use graph::{dot3, Adjacency, Graph};
 pub use llw::llw_weights;
 
 /// Coarsening stops once a level has at most this many points; that level is solved by a
@@ -152,11 +157,10 @@ impl Work {
     }
 }
 
-/// The multigrid hierarchy: the fine operator, the Galerkin coarse operators, the
+/// The multigrid hierarchy: the operators of every level (the fine one first), the
 /// prolongations between them and the factored coarsest level.
 struct Hierarchy {
-    fine: Fine,
-    coarse: Vec<Graph>,
+    ops: Vec<Graph>,
     transfers: Vec<Prolongation>,
     /// The factored coarsest level (None if coarsening stalled above [`DENSE_MAX`] points).
     dense: Option<Dense>,
@@ -166,21 +170,22 @@ struct Hierarchy {
 }
 
 impl Hierarchy {
-    fn build(fine: Fine, ctl: &dyn Control) -> Result<Self, Canceled> {
-        let mut coarse: Vec<Graph> = Vec::new();
-        let mut transfers = Vec::new();
+    /// `grid_order`: the fine points in grid order (aggregation meets them so; see
+    /// [`fine::FineLevel::grid_order`]).
+    fn build(fine: Graph, grid_order: &[u32], ctl: &dyn Control) -> Result<Self, Canceled> {
         let mut work = vec![Work::new(fine.len())];
+        let mut ops = vec![fine];
+        let mut transfers = Vec::new();
         let mut theta = THETA;
         loop {
             ctl.checkpoint()?;
-            let n = coarse.last().map_or(fine.len(), |c| c.len());
+            let a = &ops[ops.len() - 1];
+            let n = a.len();
             if n <= COARSEST_POINTS {
                 break;
             }
-            let (t, c) = match coarse.last() {
-                None => coarsen(&fine, theta),
-                Some(op) => coarsen(op, theta),
-            };
+            let order = (ops.len() == 1).then_some(grid_order);
+            let (t, c) = coarsen(a, theta, order);
             // Aggregation that no longer shrinks the level (every coupling weak) would only
             // add cost; the smoother is then left to do the work on this level.
             if c.len() * 10 > n * 9 {
@@ -188,19 +193,14 @@ impl Hierarchy {
             }
             work.push(Work::new(c.len()));
             transfers.push(t);
-            coarse.push(c);
+            ops.push(c);
             theta *= 0.5;
         }
         ctl.checkpoint()?;
-        let last = coarse.last().map_or(fine.len(), |c| c.len());
-        let dense = match coarse.last() {
-            _ if last > DENSE_MAX => None,
-            None => Some(Dense::factor(&fine)),
-            Some(op) => Some(Dense::factor(op)),
-        };
+        let last = &ops[ops.len() - 1];
+        let dense = (last.len() <= DENSE_MAX).then(|| Dense::factor(last));
         Ok(Self {
-            fine,
-            coarse,
+            ops,
             transfers,
             dense,
             work,
@@ -209,7 +209,7 @@ impl Hierarchy {
     }
 
     fn levels(&self) -> usize {
-        self.work.len()
+        self.ops.len()
     }
 
     /// One cycle on level `l`: `work[l].e ≈ A⁻¹ work[l].b`, starting from zero. Pre-smoothing,
@@ -227,24 +227,25 @@ impl Hierarchy {
                     // Coarsening stalled on a large level: symmetric sweeps instead.
                     w.e.par_iter_mut().for_each(|v| *v = [0.0; 3]);
                     for _ in 0..FALLBACK_SWEEPS {
-                        self.smooth(l, false);
-                        self.smooth(l, true);
+                        self.ops[l].smooth(&mut w.e, &w.b, false);
+                        self.ops[l].smooth(&mut w.e, &w.b, true);
                     }
                 }
             }
             return;
         }
-        self.work[l].e.par_iter_mut().for_each(|v| *v = [0.0; 3]);
-        for _ in 0..nu {
-            self.smooth(l, false);
+        let op = &self.ops[l];
+        {
+            let w = &mut self.work[l];
+            w.e.par_iter_mut().for_each(|v| *v = [0.0; 3]);
+            for _ in 0..nu {
+                op.smooth(&mut w.e, &w.b, false);
+            }
         }
         {
             let (head, tail) = self.work.split_at_mut(l + 1);
             let w = &mut head[l];
-            match l {
-                0 => residual_fine(&self.fine, &w.e, &w.b, &mut w.r),
-                _ => self.coarse[l - 1].residual(&w.e, &w.b, &mut w.r),
-            }
+            op.residual(&w.e, &w.b, &mut w.r);
             self.transfers[l].restrict(&w.r, &mut tail[0].b);
         }
         self.cycle(l + 1, nu);
@@ -253,7 +254,7 @@ impl Hierarchy {
                 // Another cycle on the coarse problem, from its residual: e += M (b − A e).
                 let mut keep = std::mem::take(&mut self.keep);
                 let c = &mut self.work[l + 1];
-                self.coarse[l].residual(&c.e, &c.b, &mut c.r);
+                self.ops[l + 1].residual(&c.e, &c.b, &mut c.r);
                 keep.clear();
                 keep.extend_from_slice(&c.e);
                 std::mem::swap(&mut c.b, &mut c.r);
@@ -267,174 +268,152 @@ impl Hierarchy {
                 self.keep = keep;
             }
         }
-        {
-            let (head, tail) = self.work.split_at_mut(l + 1);
-            self.transfers[l].prolong_add(&tail[0].e, &mut head[l].e);
-        }
+        let (head, tail) = self.work.split_at_mut(l + 1);
+        let w = &mut head[l];
+        self.transfers[l].prolong_add(&tail[0].e, &mut w.e);
         for _ in 0..nu {
-            self.smooth(l, true);
-        }
-    }
-
-    fn smooth(&mut self, l: usize, reverse: bool) {
-        let w = &mut self.work[l];
-        match l {
-            0 => smooth_fine(&self.fine, &mut w.e, &w.b, reverse),
-            _ => self.coarse[l - 1].smooth(&mut w.e, &w.b, reverse),
+            self.ops[l].smooth(&mut w.e, &w.b, true);
         }
     }
 }
 
 /// One coarsening step: aggregation, smoothed prolongation, Galerkin product.
-fn coarsen<A: Adjacency>(a: &A, theta: f32) -> (Prolongation, Graph) {
+/// `order`: the order in which aggregation meets the points (index order if None).
+fn coarsen<A: Adjacency>(a: &A, theta: f32, order: Option<&[u32]>) -> (Prolongation, Graph) {
     let diag: Vec<f32> = (0..a.len())
         .into_par_iter()
         .map(|i| a.diagonal(i))
         .collect();
-    let (mut p, nc) = Prolongation::build(a, &diag, theta);
+    let (mut p, nc) = Prolongation::build(a, &diag, theta, order);
     let g = galerkin::galerkin(a, &diag, &mut p, nc);
     (p, g)
 }
 
-/// `out = −L x` on the free voxels (the residual of the LLW system, the pins' values in `x`),
-/// in f64, stored f32; returns `‖out‖²`.
-fn residual_of(fine: &Fine, x: &[[f64; 3]], out: &mut [Rgb]) -> f64 {
-    let [nx, ny, nz] = fine.dims;
-    let plane = nx * ny;
-    let parts: Vec<f64> = out
-        .par_chunks_mut(plane)
-        .enumerate()
-        .map(|(z, o)| {
-            let mut sq = 0.0;
-            for y in 0..ny {
-                for x0 in 0..nx {
-                    let j = x0 + nx * y;
-                    let i = plane * z + j;
-                    if fine.pinned[i] {
-                        o[j] = [0.0; 3];
-                        continue;
-                    }
-                    let xi = x[i];
-                    let mut acc = [0f64; 3];
-                    let mut edge = |c: f32, n: usize| {
-                        let c = f64::from(c);
-                        for q in 0..3 {
-                            acc[q] += c * (x[n][q] - xi[q]);
-                        }
-                    };
-                    for_each_edge(&fine.a, [nx, ny, nz], [x0, y, z], i, &mut edge);
-                    sq += acc.iter().map(|v| v * v).sum::<f64>();
-                    o[j] = acc.map(|v| v as f32);
-                }
-            }
-            sq
-        })
-        .collect();
-    parts.iter().sum()
-}
-
-/// Per-channel dot products (f64, summed per plane in order: thread-count independent).
-fn dot3(a: &[Rgb], b: &[Rgb], dims: [usize; 3]) -> [f64; 3] {
-    let plane = dims[0] * dims[1];
-    let parts: Vec<[f64; 3]> = a
-        .par_chunks(plane)
-        .zip(b.par_chunks(plane))
-        .map(|(x, y)| {
-            let mut s = [0f64; 3];
-            for (u, v) in x.iter().zip(y) {
-                for q in 0..3 {
-                    s[q] += f64::from(u[q]) * f64::from(v[q]);
-                }
-            }
-            s
-        })
-        .collect();
-    parts.iter().fold([0.0; 3], |acc, s| {
-        [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
-    })
-}
-
-/// Propagates `pins` (flat index, linear RGB) over the grid of `dims` (x fastest) guided by
-/// `guide` (one value per voxel) and returns every voxel's colour, the LLW system solved by
-/// multigrid V-cycles to `opts.tolerance` (module doc). A voxel pinned twice takes the later
-/// colour; pins outside the grid are ignored; with no pins the result is all zero. `guide`
-/// must hold `dims[0]·dims[1]·dims[2]` values. Allocates about 150 bytes per voxel.
+/// Propagates `pins` (flat index, linear RGB) over the cloud of the grid of `dims` (x fastest)
+/// guided by `guide` (one value per voxel) and returns every voxel's colour, the LLW system
+/// solved by multigrid-preconditioned conjugate gradients to `opts.tolerance` (module doc).
+///
+/// The cloud is the voxels with `density > 0` (every voxel when `density` is None); pins are
+/// part of it whatever their density. The unknowns are the cloud voxels connected to a pin
+/// through the cloud (see [`fine`]); every other voxel — empty space, and puffs no pin
+/// reaches — gets `fill(voxel)`. A voxel pinned twice takes the later colour; pins outside the
+/// grid are ignored. `guide` (and `density`) must hold `dims[0]·dims[1]·dims[2]` values.
+/// Allocates about 40 bytes per voxel and 150 per unknown.
 pub fn propagate(
     dims: [usize; 3],
     guide: &[f32],
+    density: Option<&[f32]>,
     pins: &[(usize, [f32; 3])],
+    fill: &(dyn Fn(usize) -> [f32; 3] + Sync),
     opts: SolveOptions,
     ctl: &dyn Control,
 ) -> Result<(Vec<[f32; 3]>, SolveStats), Canceled> {
     let start = Instant::now();
     let n = guide.len();
-    debug_assert_eq!(n, dims[0] * dims[1] * dims[2]);
     let mut stats = SolveStats {
         residuals: vec![1.0],
         levels: 0,
         setup: Duration::ZERO,
         solve: Duration::ZERO,
     };
-    let mut pinned = vec![false; n];
-    let mut x = vec![[0f64; 3]; n];
+    let fill_all = || (0..n).into_par_iter().map(fill).collect();
+    if n == 0 || n != dims[0] * dims[1] * dims[2] || density.is_some_and(|d| d.len() != n) {
+        return Ok((fill_all(), stats));
+    }
+    let mut pinned: Vec<Option<[f64; 3]>> = vec![None; n];
     for &(i, c) in pins {
         if i < n {
-            pinned[i] = true;
-            x[i] = c.map(f64::from);
+            pinned[i] = Some(c.map(f64::from));
         }
     }
-    if n == 0 || n != dims[0] * dims[1] * dims[2] || !pinned.contains(&true) {
-        return Ok((vec![[0.0; 3]; n], stats));
+    if !pinned.iter().any(Option::is_some) {
+        return Ok((fill_all(), stats));
     }
+    let cloud: Vec<bool> = match density {
+        Some(d) => d.par_iter().map(|&r| r > 0.0).collect(),
+        None => vec![true; n],
+    };
     let a = llw_weights(dims, guide);
-    let mut h = Hierarchy::build(Fine { dims, a, pinned }, ctl)?;
-    stats.levels = h.levels();
-    stats.setup = start.elapsed();
-    let start = Instant::now();
-    let norm0 = residual_of(&h.fine, &x, &mut h.work[0].b).sqrt();
-    if norm0 > 0.0 {
-        // Conjugate gradients per channel, preconditioned by one V-cycle: z = M r in
-        // work[0].e (r in work[0].b), q = A p in work[0].r (free between cycles).
-        let mut p = vec![[0f32; 3]; n];
-        let mut rz_old = [0f64; 3];
-        for k in 0..opts.max_iterations {
-            ctl.checkpoint()?;
-            h.cycle(0, opts.smoothing.max(1));
-            let w = &mut h.work[0];
-            let rz = dot3(&w.b, &w.e, h.fine.dims);
-            let beta: [f64; 3] = std::array::from_fn(|c| {
-                if k > 0 && rz_old[c] > 0.0 {
-                    rz[c] / rz_old[c]
-                } else {
-                    0.0
-                }
-            });
-            rz_old = rz;
-            p.par_iter_mut().zip(w.e.par_iter()).for_each(|(pv, zv)| {
-                for c in 0..3 {
-                    pv[c] = (f64::from(zv[c]) + beta[c] * f64::from(pv[c])) as f32;
-                }
-            });
-            apply_fine(&h.fine, &p, &mut w.r);
-            let pq = dot3(&p, &w.r, h.fine.dims);
-            let alpha: [f64; 3] =
-                std::array::from_fn(|c| if pq[c] > 0.0 { rz[c] / pq[c] } else { 0.0 });
-            x.par_iter_mut().zip(p.par_iter()).for_each(|(xv, pv)| {
-                for c in 0..3 {
-                    xv[c] += alpha[c] * f64::from(pv[c]);
-                }
-            });
-            // The true residual of x (not the recurrence), so the reported figures are exact.
-            let rel = residual_of(&h.fine, &x, &mut w.b).sqrt() / norm0;
-            stats.residuals.push(rel);
-            if rel <= opts.tolerance {
-                break;
+    let fine = fine_level(dims, &a, &cloud, &pinned);
+    drop((a, cloud));
+    let m = fine.voxel.len();
+    let mut x = vec![[0f64; 3]; m];
+    if m > 0 {
+        let mut h = Hierarchy::build(fine.op, &fine.grid_order, ctl)?;
+        stats.levels = h.levels();
+        stats.setup = start.elapsed();
+        let start = Instant::now();
+        let fine_op = &h.ops[0];
+        let norm0 = fine_op.residual_f64(&x, &fine.b, &mut h.work[0].b).sqrt();
+        if norm0 > 0.0 {
+            cg(&mut h, &fine.b, &mut x, norm0, opts, &mut stats, ctl)?;
+        }
+        stats.solve = start.elapsed();
+    }
+    let mut out: Vec<[f32; 3]> = (0..n)
+        .into_par_iter()
+        .map(|i| match pinned[i] {
+            Some(c) => c.map(|v| v as f32),
+            None if fine.reached[i] => [0.0; 3],
+            None => fill(i),
+        })
+        .collect();
+    for (u, &i) in fine.voxel.iter().enumerate() {
+        out[i as usize] = x[u].map(|v| v as f32);
+    }
+    Ok((out, stats))
+}
+
+/// Conjugate gradients per channel on the fine level of `h` (right-hand side `b`, iterate `x`
+/// from zero), preconditioned by one multigrid cycle: z = M r in `work[0].e` (r in
+/// `work[0].b`), q = A p in `work[0].r` (free between cycles). The residual of `x` is recomputed
+/// in f64 every iteration (not the recurrence), so the reported figures are exact.
+fn cg(
+    h: &mut Hierarchy,
+    b: &[[f64; 3]],
+    x: &mut [[f64; 3]],
+    norm0: f64,
+    opts: SolveOptions,
+    stats: &mut SolveStats,
+    ctl: &dyn Control,
+) -> Result<(), Canceled> {
+    let mut p = vec![[0f32; 3]; x.len()];
+    let mut rz_old = [0f64; 3];
+    for k in 0..opts.max_iterations {
+        ctl.checkpoint()?;
+        h.cycle(0, opts.smoothing.max(1));
+        let op = &h.ops[0];
+        let w = &mut h.work[0];
+        let rz = dot3(&w.b, &w.e);
+        let beta: [f64; 3] = std::array::from_fn(|c| {
+            if k > 0 && rz_old[c] > 0.0 {
+                rz[c] / rz_old[c]
+            } else {
+                0.0
             }
+        });
+        rz_old = rz;
+        p.par_iter_mut().zip(w.e.par_iter()).for_each(|(pv, zv)| {
+            for c in 0..3 {
+                pv[c] = (f64::from(zv[c]) + beta[c] * f64::from(pv[c])) as f32;
+            }
+        });
+        op.apply(&p, &mut w.r);
+        let pq = dot3(&p, &w.r);
+        let alpha: [f64; 3] =
+            std::array::from_fn(|c| if pq[c] > 0.0 { rz[c] / pq[c] } else { 0.0 });
+        x.par_iter_mut().zip(p.par_iter()).for_each(|(xv, pv)| {
+            for c in 0..3 {
+                xv[c] += alpha[c] * f64::from(pv[c]);
+            }
+        });
+        let rel = op.residual_f64(x, b, &mut w.b).sqrt() / norm0;
+        stats.residuals.push(rel);
+        if rel <= opts.tolerance {
+            break;
         }
     }
-    stats.solve = start.elapsed();
-    let out = x.iter().map(|c| c.map(|v| v as f32)).collect();
-    Ok((out, stats))
+    Ok(())
 }
 
 #[cfg(test)]

@@ -3,17 +3,23 @@
 //! For every painted pixel the camera ray is walked voxel by voxel (3-D DDA) and the painted
 //! colour (linear) is pinned on every voxel with ρ > 0 that it crosses — through the whole
 //! cloud, as the paper does; a voxel crossed by several painted rays takes the mean of their
-//! colours. The pins are propagated to every voxel by colourization by optimization with the
-//! direct light (sun transmittance) as the guide, solved by multigrid ([`crate::cloud::multigrid`])
-//! to a relative residual of 10⁻⁶. The field holds I_m itself; `ambient_scale` multiplies it at
-//! render time. Each ambient edit propagates its own strokes: the result replaces the base
-//! version's field (earlier versions keep theirs — undo is choosing a version).
+//! colours. The pins are propagated to the cloud voxels (ρ > 0) they reach through the cloud by
+//! colourization by optimization with the direct light (sun transmittance) as the guide, solved
+//! by multigrid ([`crate::cloud::multigrid`]) to a relative residual of 10⁻⁶. The field holds
+//! I_m itself; `ambient_scale` multiplies it at render time. Each ambient edit propagates its
+//! own strokes: the result replaces the base version's field (earlier versions keep theirs —
+//! undo is choosing a version).
+//!
+//! Our reading for the voxels the paint cannot reach (a separate puff with no painted pixel on
+//! it, and empty space, where the value never shows): they keep the ambient they showed in the
+//! base version — its field, or its uniform `ambient` — expressed under the new version's
+//! `ambient_scale`. An edit changes what the strokes reach and nothing else.
 
 use super::{AmbientEdit, EditError};
 use crate::cloud::grid::GridFrame;
 use crate::cloud::light::SunLight;
 use crate::cloud::multigrid::{propagate, SolveOptions, SolveStats};
-use crate::cloud::state::AmbientField;
+use crate::cloud::state::{AmbientField, CloudState};
 use crate::geom::Volume;
 use crate::Control;
 
@@ -47,21 +53,36 @@ pub fn pins(volume: &Volume, edit: &AmbientEdit) -> Vec<(usize, [f32; 3])> {
         .collect()
 }
 
-/// Pins the paint and propagates it (see the module doc).
+/// Pins the paint and propagates it (see the module doc) on the version (`base`,
+/// `base_field`).
 pub fn propagate_paint(
     volume: &Volume,
     light: &SunLight,
     edit: &AmbientEdit,
+    base: &CloudState,
+    base_field: Option<&AmbientField>,
     ctl: &dyn Control,
 ) -> Result<(AmbientField, SolveStats), EditError> {
     let pins = pins(volume, edit);
     if pins.is_empty() {
         return Err(EditError::NoCover);
     }
+    // The base version's visible ambient as I_m under the new scale (module doc).
+    let scale = edit.ambient_scale.unwrap_or(base.ambient_scale);
+    let per = if scale > 0.0 { 1.0 / scale } else { 1.0 };
+    let field = base_field.filter(|f| f.rgb.len() == volume.len());
+    let fill = |i: usize| -> [f32; 3] {
+        match field {
+            Some(f) => f.rgb[i].map(|v| (f64::from(v) * base.ambient_scale * per) as f32),
+            None => base.ambient.map(|v| (v * per) as f32),
+        }
+    };
     let (rgb, stats) = propagate(
         volume.dims,
         &light.transmittance,
+        Some(&volume.density),
         &pins,
+        &fill,
         SolveOptions::default(),
         ctl,
     )?;

@@ -299,7 +299,7 @@ pub fn apply_edit(
             ctl.progress("light", 0.0);
             let light = SunLight::compute(volume, base.sun_direction, base.kappa, ctl)?;
             ctl.progress("ambient", 0.2);
-            let (field, _) = ambient::propagate_paint(volume, &light, e, ctl)?;
+            let (field, _) = ambient::propagate_paint(volume, &light, e, base, ambient, ctl)?;
             Ok(EditOutcome {
                 state: CloudState {
                     ambient_scale: e.ambient_scale.unwrap_or(base.ambient_scale),

@@ -11,7 +11,7 @@
 //! - *Aggregation* (in index order, so deterministic): (1) a point whose strong neighbours are
 //!   all free becomes a root and takes them; (2) a leftover point joins the aggregate of its
 //!   strongest neighbour aggregated in (1); (3) the rest form aggregates with their free strong
-//!   neighbours (or alone). Pinned voxels are never aggregated.
+//!   neighbours (or alone).
 //! - *Prolongation*: `P = (I − ω D_F⁻¹ A_F) P_tent`, `A_F` the operator with weak couplings
 //!   dropped and lumped into its diagonal (`D_F = s + Σ_strong c`: row sums kept), ω = 2/3
 //!   (= 4/3 over the Gershgorin bound 2 of `ρ(D_F⁻¹A_F)`). Row i: `1 − ω` on its own
@@ -88,9 +88,23 @@ fn strong(c: f32, di: f32, dj: f32, theta: f32) -> bool {
     c > 0.0 && c * c >= theta * theta * di * dj
 }
 
-/// Aggregates of the points of `a` (module doc): the aggregate of every point (`u32::MAX` for
-/// decoupled ones) and their number.
-fn aggregates<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Vec<u32>, usize) {
+/// The points `0..n`, or `order` (a permutation of them).
+fn visit(n: usize, order: Option<&[u32]>) -> impl Iterator<Item = usize> + '_ {
+    let (all, given) = match order {
+        Some(o) => (0..0, o),
+        None => (0..n, &[][..]),
+    };
+    all.chain(given.iter().map(|&i| i as usize))
+}
+
+/// Aggregates of the points of `a` (module doc) met in `order` (index order if None): the
+/// aggregate of every point and their number.
+fn aggregates<A: Adjacency>(
+    a: &A,
+    diag: &[f32],
+    theta: f32,
+    order: Option<&[u32]>,
+) -> (Vec<u32>, usize) {
     let n = a.len();
     let mut agg = vec![NONE; n];
     let mut count = 0u32;
@@ -104,8 +118,8 @@ fn aggregates<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Vec<u32>, usize
         });
     };
     // (1) Roots with all strong neighbours free.
-    for i in 0..n {
-        if agg[i] != NONE || a.decoupled(i) {
+    for i in visit(n, order) {
+        if agg[i] != NONE {
             continue;
         }
         strong_of(i, &mut nb);
@@ -120,8 +134,8 @@ fn aggregates<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Vec<u32>, usize
     }
     // (2) Leftovers join their strongest aggregated neighbour's aggregate (of phase 1).
     let phase1 = agg.clone();
-    for i in 0..n {
-        if agg[i] != NONE || a.decoupled(i) {
+    for i in visit(n, order) {
+        if agg[i] != NONE {
             continue;
         }
         strong_of(i, &mut nb);
@@ -137,8 +151,8 @@ fn aggregates<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Vec<u32>, usize
         }
     }
     // (3) The rest: new aggregates with their free strong neighbours, or alone.
-    for i in 0..n {
-        if agg[i] != NONE || a.decoupled(i) {
+    for i in visit(n, order) {
+        if agg[i] != NONE {
             continue;
         }
         strong_of(i, &mut nb);
@@ -154,12 +168,17 @@ fn aggregates<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Vec<u32>, usize
 }
 
 impl Prolongation {
-    /// Aggregates `a`'s points at strength threshold `theta` and builds the smoothed
-    /// prolongation (module doc); returns it and the number of coarse points. `diag` is `a`'s
-    /// diagonal.
-    pub fn build<A: Adjacency>(a: &A, diag: &[f32], theta: f32) -> (Self, usize) {
+    /// Aggregates `a`'s points at strength threshold `theta`, meeting them in `order` (index
+    /// order if None), and builds the smoothed prolongation (module doc); returns it and the
+    /// number of coarse points. `diag` is `a`'s diagonal.
+    pub fn build<A: Adjacency>(
+        a: &A,
+        diag: &[f32],
+        theta: f32,
+        order: Option<&[u32]>,
+    ) -> (Self, usize) {
         let n = a.len();
-        let (agg, nc) = aggregates(a, diag, theta);
+        let (agg, nc) = aggregates(a, diag, theta, order);
         let parts: Vec<(Vec<usize>, Vec<u32>, Vec<f32>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .map(|t| {

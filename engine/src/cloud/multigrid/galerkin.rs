@@ -33,9 +33,6 @@ pub(super) fn galerkin<A: Adjacency>(
     let au: Vec<f64> = (0..n)
         .into_par_iter()
         .map(|i| {
-            if a.decoupled(i) {
-                return u[i];
-            }
             let mut v = f64::from(a.excess(i)) * u[i];
             a.each(i, |j, c| v += f64::from(c) * (u[i] - u[j]));
             v

@@ -14,10 +14,7 @@ use super::fine::Rgb;
 /// of a level's operator.
 pub(super) trait Adjacency: Sync {
     fn len(&self) -> usize;
-    /// An identity row with no conductance (a pinned voxel): never aggregated, never
-    /// interpolated.
-    fn decoupled(&self, i: usize) -> bool;
-    /// The excess `s_i` (1 for a decoupled row).
+    /// The excess `s_i`.
     fn excess(&self, i: usize) -> f32;
     /// Calls `f(j, c_ij)` for every non-zero conductance of row `i`.
     fn each(&self, i: usize, f: impl FnMut(usize, f32));
@@ -44,9 +41,6 @@ pub(super) struct Graph {
 impl Adjacency for Graph {
     fn len(&self) -> usize {
         self.excess.len()
-    }
-    fn decoupled(&self, _: usize) -> bool {
-        false
     }
     fn excess(&self, i: usize) -> f32 {
         self.excess[i]
@@ -119,6 +113,77 @@ impl Graph {
             }
         });
     }
+}
+
+impl Graph {
+    /// `out = b − A x` in f64 (stored f32); returns `‖out‖²` (summed per fixed chunk, in order:
+    /// independent of the thread count).
+    pub fn residual_f64(&self, x: &[[f64; 3]], b: &[[f64; 3]], out: &mut [Rgb]) -> f64 {
+        let parts: Vec<f64> = out
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(t, o)| {
+                let mut sq = 0.0;
+                for (m, v) in o.iter_mut().enumerate() {
+                    let i = t * CHUNK + m;
+                    let xi = x[i];
+                    let s = f64::from(self.excess[i]);
+                    let mut acc: [f64; 3] = std::array::from_fn(|q| b[i][q] - s * xi[q]);
+                    for p in self.ptr[i]..self.ptr[i + 1] {
+                        let xj = x[self.col[p] as usize];
+                        let c = f64::from(self.c[p]);
+                        for q in 0..3 {
+                            acc[q] -= c * (xi[q] - xj[q]);
+                        }
+                    }
+                    sq += acc.iter().map(|v| v * v).sum::<f64>();
+                    *v = acc.map(|v| v as f32);
+                }
+                sq
+            })
+            .collect();
+        parts.iter().sum()
+    }
+
+    /// `out = A p` (accumulated in f64).
+    pub fn apply(&self, p: &[Rgb], out: &mut [Rgb]) {
+        out.par_chunks_mut(CHUNK).enumerate().for_each(|(t, o)| {
+            for (m, v) in o.iter_mut().enumerate() {
+                let i = t * CHUNK + m;
+                let pi = p[i];
+                let s = f64::from(self.excess[i]);
+                let mut acc: [f64; 3] = std::array::from_fn(|q| s * f64::from(pi[q]));
+                for k in self.ptr[i]..self.ptr[i + 1] {
+                    let pj = p[self.col[k] as usize];
+                    let c = f64::from(self.c[k]);
+                    for q in 0..3 {
+                        acc[q] += c * f64::from(pi[q] - pj[q]);
+                    }
+                }
+                *v = acc.map(|v| v as f32);
+            }
+        });
+    }
+}
+
+/// Per-channel dot products (f64, summed per fixed chunk in order: thread-count independent).
+pub(super) fn dot3(a: &[Rgb], b: &[Rgb]) -> [f64; 3] {
+    let parts: Vec<[f64; 3]> = a
+        .par_chunks(CHUNK)
+        .zip(b.par_chunks(CHUNK))
+        .map(|(x, y)| {
+            let mut s = [0f64; 3];
+            for (u, v) in x.iter().zip(y) {
+                for q in 0..3 {
+                    s[q] += f64::from(u[q]) * f64::from(v[q]);
+                }
+            }
+            s
+        })
+        .collect();
+    parts.iter().fold([0.0; 3], |acc, s| {
+        [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
+    })
 }
 
 /// A greedy colouring of a symmetric graph in index order and the numbering that puts the

@@ -1,7 +1,7 @@
 //! Unit checks of the hierarchy's pieces against their definitions.
 
 use super::aggregate::Prolongation;
-use super::fine::{Fine, Rgb};
+use super::fine::{fine_level, Rgb};
 use super::graph::{Adjacency, Graph};
 use super::*;
 
@@ -14,12 +14,15 @@ fn rnd(i: usize, salt: u32) -> f32 {
     (h & 0xffff) as f32 / 65536.0
 }
 
-fn random_fine(dims: [usize; 3]) -> Fine {
+/// The fine level of a random guide with 5 % of the voxels pinned, every voxel in the cloud.
+fn random_fine(dims: [usize; 3]) -> Graph {
     let n = dims[0] * dims[1] * dims[2];
     let guide: Vec<f32> = (0..n).map(|i| rnd(i, 1)).collect();
     let a = llw_weights(dims, &guide);
-    let pinned = (0..n).map(|i| rnd(i, 2) < 0.05).collect();
-    Fine { dims, a, pinned }
+    let pins: Vec<_> = (0..n)
+        .map(|i| (rnd(i, 2) < 0.05).then_some([1.0, 0.5, 0.0]))
+        .collect();
+    fine_level(dims, &a, &vec![true; n], &pins).op
 }
 
 /// `A e` of any level through its adjacency (f64).
@@ -87,9 +90,9 @@ fn check_galerkin<A: Adjacency>(a: &A, p: &Prolongation, c: &Graph, what: &str) 
 #[test]
 fn galerkin_levels_are_pt_a_p() {
     let fine = random_fine([20, 18, 16]);
-    let (p1, c1) = coarsen(&fine, THETA);
+    let (p1, c1) = coarsen(&fine, THETA, None);
     check_galerkin(&fine, &p1, &c1, "level 1");
-    let (p2, c2) = coarsen(&c1, THETA);
+    let (p2, c2) = coarsen(&c1, THETA, None);
     check_galerkin(&c1, &p2, &c2, "level 2");
 }
 
@@ -97,7 +100,7 @@ fn galerkin_levels_are_pt_a_p() {
 fn galerkin_operator_is_pt_a_p_and_symmetric() {
     for dims in [[7, 6, 5], [12, 9, 10]] {
         let fine = random_fine(dims);
-        let (p, c) = coarsen(&fine, THETA);
+        let (p, c) = coarsen(&fine, THETA, None);
         let nc = c.len();
         assert!(nc < fine.len() / 2, "{dims:?}: {nc} coarse points");
         let vc: Vec<Rgb> = (0..nc).map(|i| [rnd(i, 3), rnd(i, 4), rnd(i, 5)]).collect();
@@ -150,7 +153,9 @@ fn uniform_rates(dims: [usize; 3], pins: &[(usize, [f32; 3])]) -> Vec<f64> {
     let (_, st) = propagate(
         dims,
         &guide,
+        None,
         pins,
+        &|_| [0.0; 3],
         SolveOptions::default(),
         &crate::NoControl,
     )
@@ -208,7 +213,9 @@ fn tiny_and_flat_grids_solve() {
         let (u, st) = propagate(
             dims,
             &guide,
+            None,
             &pins,
+            &|_| [0.0; 3],
             SolveOptions::default(),
             &crate::NoControl,
         )
