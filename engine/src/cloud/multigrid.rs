@@ -84,6 +84,7 @@ use rayon::prelude::*;
 use crate::{Canceled, Control};
 use aggregate::Prolongation;
 use dense::Dense;
+use fine::FineLevel;
 use fine::{fine_level, Rgb};
 use graph::{dot3, Adjacency, Graph};
 pub use llw::llw_weights;
@@ -316,26 +317,14 @@ pub fn propagate(
         setup: Duration::ZERO,
         solve: Duration::ZERO,
     };
-    let fill_all = || (0..n).into_par_iter().map(fill).collect();
-    if n == 0 || n != dims[0] * dims[1] * dims[2] || density.is_some_and(|d| d.len() != n) {
-        return Ok((fill_all(), stats));
-    }
-    let mut pinned: Vec<Option<[f64; 3]>> = vec![None; n];
-    for &(i, c) in pins {
-        if i < n {
-            pinned[i] = Some(c.map(f64::from));
-        }
-    }
-    if !pinned.iter().any(Option::is_some) {
-        return Ok((fill_all(), stats));
-    }
-    let cloud: Vec<bool> = match density {
-        Some(d) => d.par_iter().map(|&r| r > 0.0).collect(),
-        None => vec![true; n],
+    let Some(Setup {
+        fine,
+        pin_at,
+        colours,
+    }) = set_up(dims, guide, density, pins)
+    else {
+        return Ok(((0..n).into_par_iter().map(fill).collect(), stats));
     };
-    let a = llw_weights(dims, guide);
-    let fine = fine_level(dims, &a, &cloud, &pinned);
-    drop((a, cloud));
     let m = fine.voxel.len();
     let mut x = vec![[0f64; 3]; m];
     if m > 0 {
@@ -352,16 +341,98 @@ pub fn propagate(
     }
     let mut out: Vec<[f32; 3]> = (0..n)
         .into_par_iter()
-        .map(|i| match pinned[i] {
-            Some(c) => c.map(|v| v as f32),
-            None if fine.reached[i] => [0.0; 3],
-            None => fill(i),
+        .map(|i| match pin_at[i] {
+            fine::NONE if fine.reached[i] => [0.0; 3],
+            fine::NONE => fill(i),
+            p => colours[p as usize],
         })
         .collect();
     for (u, &i) in fine.voxel.iter().enumerate() {
         out[i as usize] = x[u].map(|v| v as f32);
     }
     Ok((out, stats))
+}
+
+/// A propagation problem set up: the fine level, each voxel's pin (index into `colours`, or
+/// [`fine::NONE`]) and the pins' colours.
+struct Setup {
+    fine: FineLevel,
+    pin_at: Vec<u32>,
+    colours: Vec<[f32; 3]>,
+}
+
+/// The fine level of [`propagate`]'s problem; None when there is nothing to solve (sizes that
+/// do not match `dims`, no pin inside the grid).
+fn set_up(
+    dims: [usize; 3],
+    guide: &[f32],
+    density: Option<&[f32]>,
+    pins: &[(usize, [f32; 3])],
+) -> Option<Setup> {
+    let n = guide.len();
+    if n == 0 || n != dims[0] * dims[1] * dims[2] || density.is_some_and(|d| d.len() != n) {
+        return None;
+    }
+    let mut pin_at = vec![fine::NONE; n];
+    let mut colours = Vec::with_capacity(pins.len());
+    for &(i, c) in pins {
+        if i < n {
+            pin_at[i] = colours.len() as u32;
+            colours.push(c);
+        }
+    }
+    if colours.is_empty() {
+        return None;
+    }
+    // The cloud, pins included; the LLW weights only between its voxels.
+    let cloud: Vec<bool> = match density {
+        Some(d) => d
+            .par_iter()
+            .zip(&pin_at)
+            .map(|(&r, &p)| r > 0.0 || p != fine::NONE)
+            .collect(),
+        None => vec![true; n],
+    };
+    let a = llw::llw_weights_in(dims, guide, density.is_some().then_some(&cloud[..]));
+    let fine = fine_level(dims, &a, &cloud, &pin_at, &colours);
+    Some(Setup {
+        fine,
+        pin_at,
+        colours,
+    })
+}
+
+/// [`propagate`]'s linear system on its unknowns, for a general solver to be compared with
+/// ours (the benchmarks' baseline): row `k`'s off-diagonal entries are `−conductance[p]` at
+/// columns `col[p]`, `p` in `ptr[k]..ptr[k + 1]`; its diagonal is `excess[k] + Σ_p
+/// conductance[p]`; `b[k]` its right-hand side per channel. Empty when there is nothing to
+/// solve.
+#[derive(Debug, Clone, Default)]
+pub struct LlwSystem {
+    pub ptr: Vec<usize>,
+    pub col: Vec<u32>,
+    pub conductance: Vec<f32>,
+    pub excess: Vec<f32>,
+    pub b: Vec<[f64; 3]>,
+}
+
+/// The system [`propagate`] solves (see [`LlwSystem`]).
+pub fn llw_system(
+    dims: [usize; 3],
+    guide: &[f32],
+    density: Option<&[f32]>,
+    pins: &[(usize, [f32; 3])],
+) -> LlwSystem {
+    match set_up(dims, guide, density, pins) {
+        Some(Setup { fine, .. }) => LlwSystem {
+            ptr: fine.op.ptr,
+            col: fine.op.col,
+            conductance: fine.op.c,
+            excess: fine.op.excess,
+            b: fine.b,
+        },
+        None => LlwSystem::default(),
+    }
 }
 
 /// Conjugate gradients per channel on the fine level of `h` (right-hand side `b`, iterate `x`

@@ -79,13 +79,13 @@ fn for_each_edge(
     }
 }
 
-/// The voxels reached from the pins through edges of non-zero affinity between cloud voxels
-/// (pins count as cloud), by a flood fill.
-fn reach(dims: [usize; 3], a: &[[f32; 3]], cloud: &[bool], pinned: &[bool]) -> Vec<bool> {
+/// The voxels reached from the pins (`pin_at` ≠ [`NONE`]) through edges of non-zero affinity
+/// between cloud voxels, by a flood fill.
+fn reach(dims: [usize; 3], a: &[[f32; 3]], cloud: &[bool], pin_at: &[u32]) -> Vec<bool> {
     let [nx, ny, _] = dims;
-    let mut reached = pinned.to_vec();
-    let mut stack: Vec<u32> = (0..pinned.len())
-        .filter(|&i| pinned[i])
+    let mut reached: Vec<bool> = pin_at.par_iter().map(|&p| p != NONE).collect();
+    let mut stack: Vec<u32> = (0..pin_at.len())
+        .filter(|&i| reached[i])
         .map(|i| i as u32)
         .collect();
     while let Some(i) = stack.pop() {
@@ -105,18 +105,19 @@ fn reach(dims: [usize; 3], a: &[[f32; 3]], cloud: &[bool], pinned: &[bool]) -> V
 const CHUNK: usize = 2048;
 
 /// Builds the fine level of the LLW system with affinities `a` (see [`super::llw_weights`]) on
-/// the grid of `dims`: `cloud` marks the cloud voxels, `pins` holds each pinned voxel's colour.
+/// the grid of `dims`: `cloud` marks the cloud voxels, `pin_at` each voxel's pin (an index into
+/// `colours`, or [`NONE`]).
 pub(super) fn fine_level(
     dims: [usize; 3],
     a: &[[f32; 3]],
     cloud: &[bool],
-    pins: &[Option<[f64; 3]>],
+    pin_at: &[u32],
+    colours: &[[f32; 3]],
 ) -> FineLevel {
     let [nx, ny, _] = dims;
     let n = a.len();
-    let pinned: Vec<bool> = pins.iter().map(Option::is_some).collect();
-    let reached = reach(dims, a, cloud, &pinned);
-    let free = |i: usize| reached[i] && !pinned[i];
+    let reached = reach(dims, a, cloud, pin_at);
+    let free = |i: usize| reached[i] && pin_at[i] == NONE;
     let red = |i: usize| (i % nx + (i / nx) % ny + i / (nx * ny)) % 2 == 0;
     // Red unknowns, then black ones, each in grid order.
     let mut voxel: Vec<u32> = Vec::new();
@@ -153,10 +154,11 @@ pub(super) fn fine_level(
                     if w <= 0.0 {
                         return;
                     }
-                    if let Some(x) = pins[j] {
+                    if pin_at[j] != NONE {
+                        let x = colours[pin_at[j] as usize];
                         s += w;
                         for q in 0..3 {
-                            rhs[q] += f64::from(w) * x[q];
+                            rhs[q] += f64::from(w) * f64::from(x[q]);
                         }
                     } else if index[j] != NONE {
                         col.push(index[j]);

@@ -4,8 +4,8 @@
 use rayon::prelude::*;
 
 /// LLW's per-voxel `c_r = max(0.6·var_r, min_s (Y_r − Y_s)²/ln 100, 2·10⁻⁶)` over the voxel and
-/// its (up to 6) face neighbours.
-fn llw_c(dims: [usize; 3], guide: &[f32]) -> Vec<f32> {
+/// its (up to 6) face neighbours; only at the voxels of `mask` (0 elsewhere) when given.
+fn llw_c(dims: [usize; 3], guide: &[f32], mask: Option<&[bool]>) -> Vec<f32> {
     let [nx, ny, nz] = dims;
     let plane = nx * ny;
     let ln100 = 100f32.ln();
@@ -16,6 +16,9 @@ fn llw_c(dims: [usize; 3], guide: &[f32]) -> Vec<f32> {
             for y in 0..ny {
                 for x in 0..nx {
                     let i = x + nx * y + plane * z;
+                    if mask.is_some_and(|m| !m[i]) {
+                        continue;
+                    }
                     let yr = guide[i];
                     let (mut sum, mut sum2, mut cnt) = (yr, yr * yr, 1.0f32);
                     let mut min_d2 = f32::INFINITY;
@@ -60,7 +63,18 @@ fn llw_c(dims: [usize; 3], guide: &[f32]) -> Vec<f32> {
 /// `a_rs = exp(−(Y_r − Y_s)²/½(c_r + c_s))`, 0 where the neighbour is outside the grid. The
 /// guide is one value per voxel (x fastest). Allocates 16 bytes per voxel.
 pub fn llw_weights(dims: [usize; 3], guide: &[f32]) -> Vec<[f32; 3]> {
-    let c = llw_c(dims, guide);
+    llw_weights_in(dims, guide, None)
+}
+
+/// [`llw_weights`] on the edges between voxels of `mask` only (0 elsewhere), computed only
+/// there.
+pub(super) fn llw_weights_in(
+    dims: [usize; 3],
+    guide: &[f32],
+    mask: Option<&[bool]>,
+) -> Vec<[f32; 3]> {
+    let c = llw_c(dims, guide, mask);
+    let inside = |i: usize| mask.is_none_or(|m| m[i]);
     let [nx, ny, nz] = dims;
     let plane = nx * ny;
     let mut a = vec![[0f32; 3]; guide.len()];
@@ -70,7 +84,13 @@ pub fn llw_weights(dims: [usize; 3], guide: &[f32]) -> Vec<[f32; 3]> {
             for y in 0..ny {
                 for x in 0..nx {
                     let i = x + nx * y + plane * z;
+                    if !inside(i) {
+                        continue;
+                    }
                     let edge = |j: usize| {
+                        if !inside(j) {
+                            return 0.0;
+                        }
                         let d = guide[j] - guide[i];
                         (-d * d / (0.5 * (c[i] + c[j]))).exp()
                     };

@@ -19,10 +19,10 @@ fn random_fine(dims: [usize; 3]) -> Graph {
     let n = dims[0] * dims[1] * dims[2];
     let guide: Vec<f32> = (0..n).map(|i| rnd(i, 1)).collect();
     let a = llw_weights(dims, &guide);
-    let pins: Vec<_> = (0..n)
-        .map(|i| (rnd(i, 2) < 0.05).then_some([1.0, 0.5, 0.0]))
+    let pin_at: Vec<u32> = (0..n)
+        .map(|i| if rnd(i, 2) < 0.05 { 0 } else { u32::MAX })
         .collect();
-    fine_level(dims, &a, &vec![true; n], &pins).op
+    fine_level(dims, &a, &vec![true; n], &pin_at, &[[1.0, 0.5, 0.0]]).op
 }
 
 /// `A e` of any level through its adjacency (f64).
