@@ -25,6 +25,7 @@ use phenomena_engine::cloud::edit::{recolor, sun_color, sun_direction, Edit};
 use phenomena_engine::cloud::layers::{identity, Layers};
 use phenomena_engine::cloud::light::SunLight;
 use phenomena_engine::cloud::march::{render_layers, Prepared};
+use phenomena_engine::cloud::edit::ambient::cloud_voxels;
 use phenomena_engine::cloud::multigrid::{llw_system, propagate, SolveOptions};
 use phenomena_engine::cloud::procedural::{cumulus, cumulus_pins};
 use phenomena_engine::cloud::{CloudState, View};
@@ -166,7 +167,7 @@ struct LlwCsr {
 }
 
 fn llw_csr(v: &Volume, guide: &[f32], pins: &[(usize, [f32; 3])]) -> LlwCsr {
-    let sys = llw_system(v.dims, guide, Some(&v.density), pins);
+    let sys = llw_system(v.dims, guide, Some(&cloud_voxels(&v)), pins);
     let m = sys.b.len();
     let (mut indptr, mut indices, mut data) = (vec![0usize], vec![], vec![]);
     let mut diag = vec![0f64; m];
@@ -272,7 +273,7 @@ fn bench_ambient(c: &mut Criterion) {
                 let (_, st) = propagate(
                     v.dims,
                     &guide,
-                    Some(&v.density),
+                    Some(&cloud_voxels(&v)),
                     &pins,
                     &|_| [0.0; 3],
                     SolveOptions::default(),

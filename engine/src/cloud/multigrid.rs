@@ -13,8 +13,9 @@
 //!   `a_rs = exp(−(Y_r − Y_s)²/c_rs)` are symmetric. LLW's equation `U_r = Σ_s a_rs U_s / Σ_s
 //!   a_rs` is then the graph-Laplacian system `Σ_s a_rs (U_r − U_s) = 0` — symmetric positive
 //!   definite with the pins as Dirichlet values — which conjugate gradients can accelerate.
-//! - *Unknowns*: the cloud voxels (ρ > 0) connected to a pin through the cloud — SPEC §3.2
-//!   propagates "to all cloud voxels". Empty voxels never show (the renderer weights the field
+//! - *Unknowns*: the cloud voxels connected to a pin through the cloud — SPEC §3.2 propagates
+//!   "to all cloud voxels" (which voxels are cloud is the caller's: the ambient edit takes ρ ≥
+//!   1 % of the maximum, as the sun-direction edit does). Empty voxels never show (the renderer weights the field
 //!   by ρ), and a puff no pin reaches has no equation fixing its colour; both keep a value the
 //!   caller gives (the ambient edit: what the base version showed there). Earlier sessions took
 //!   every voxel of the box as an unknown, so that lit air (T ≈ 1, like lit cloud tops) carried
@@ -294,16 +295,16 @@ fn coarsen<A: Adjacency>(a: &A, theta: f32, order: Option<&[u32]>) -> (Prolongat
 /// guided by `guide` (one value per voxel) and returns every voxel's colour, the LLW system
 /// solved by multigrid-preconditioned conjugate gradients to `opts.tolerance` (module doc).
 ///
-/// The cloud is the voxels with `density > 0` (every voxel when `density` is None); pins are
-/// part of it whatever their density. The unknowns are the cloud voxels connected to a pin
+/// The cloud is the voxels marked in `cloud` (every voxel when None); pins are part of it
+/// whatever the mask says. The unknowns are the cloud voxels connected to a pin
 /// through the cloud (see [`fine`]); every other voxel — empty space, and puffs no pin
 /// reaches — gets `fill(voxel)`. A voxel pinned twice takes the later colour; pins outside the
-/// grid are ignored. `guide` (and `density`) must hold `dims[0]·dims[1]·dims[2]` values.
+/// grid are ignored. `guide` (and `cloud`) must hold `dims[0]·dims[1]·dims[2]` values.
 /// Allocates about 40 bytes per voxel and 150 per unknown.
 pub fn propagate(
     dims: [usize; 3],
     guide: &[f32],
-    density: Option<&[f32]>,
+    cloud: Option<&[bool]>,
     pins: &[(usize, [f32; 3])],
     fill: &(dyn Fn(usize) -> [f32; 3] + Sync),
     opts: SolveOptions,
@@ -321,7 +322,7 @@ pub fn propagate(
         fine,
         pin_at,
         colours,
-    }) = set_up(dims, guide, density, pins)
+    }) = set_up(dims, guide, cloud, pins)
     else {
         return Ok(((0..n).into_par_iter().map(fill).collect(), stats));
     };
@@ -366,11 +367,11 @@ struct Setup {
 fn set_up(
     dims: [usize; 3],
     guide: &[f32],
-    density: Option<&[f32]>,
+    cloud: Option<&[bool]>,
     pins: &[(usize, [f32; 3])],
 ) -> Option<Setup> {
     let n = guide.len();
-    if n == 0 || n != dims[0] * dims[1] * dims[2] || density.is_some_and(|d| d.len() != n) {
+    if n == 0 || n != dims[0] * dims[1] * dims[2] || cloud.is_some_and(|d| d.len() != n) {
         return None;
     }
     let mut pin_at = vec![fine::NONE; n];
@@ -385,15 +386,16 @@ fn set_up(
         return None;
     }
     // The cloud, pins included; the LLW weights only between its voxels.
-    let cloud: Vec<bool> = match density {
-        Some(d) => d
+    let mask = cloud.is_some();
+    let cloud: Vec<bool> = match cloud {
+        Some(c) => c
             .par_iter()
             .zip(&pin_at)
-            .map(|(&r, &p)| r > 0.0 || p != fine::NONE)
+            .map(|(&c, &p)| c || p != fine::NONE)
             .collect(),
         None => vec![true; n],
     };
-    let a = llw::llw_weights_in(dims, guide, density.is_some().then_some(&cloud[..]));
+    let a = llw::llw_weights_in(dims, guide, mask.then_some(&cloud[..]));
     let fine = fine_level(dims, &a, &cloud, &pin_at, &colours);
     Some(Setup {
         fine,
@@ -420,10 +422,10 @@ pub struct LlwSystem {
 pub fn llw_system(
     dims: [usize; 3],
     guide: &[f32],
-    density: Option<&[f32]>,
+    cloud: Option<&[bool]>,
     pins: &[(usize, [f32; 3])],
 ) -> LlwSystem {
-    match set_up(dims, guide, density, pins) {
+    match set_up(dims, guide, cloud, pins) {
         Some(Setup { fine, .. }) => LlwSystem {
             ptr: fine.op.ptr,
             col: fine.op.col,

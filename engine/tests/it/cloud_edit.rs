@@ -3,6 +3,7 @@
 // Channel/axis index loops read clearer here; the problem tuple is local to the tests.
 #![allow(clippy::needless_range_loop, clippy::type_complexity)]
 
+use phenomena_engine::cloud::edit::ambient::cloud_voxels;
 use phenomena_engine::cloud::edit::{ambient, sun_color, sun_direction};
 use phenomena_engine::cloud::light::{transmittance_marched, SunLight};
 use phenomena_engine::cloud::march::{render_layers, Prepared};
@@ -253,6 +254,61 @@ fn edit_params_are_validated() {
     assert_eq!(e.field, "strokes");
 }
 
+#[test]
+fn an_ambient_edit_leaves_what_its_paint_cannot_reach_as_the_base_showed_it() {
+    // Paint the floating block seen level from the side: its rays miss the slab, so the slab
+    // (a separate piece of cloud) gets no pin and keeps the ambient the base version showed —
+    // first the uniform `ambient`, then the first edit's field — under each version's scale.
+    let (v, s) = slab_and_block();
+    let view = json!({"width": 80, "height": 80, "camera": {"azimuth_deg": 90, "elevation_deg": 0}});
+    let probe = json!({"strokes": [{"color": "#ffffff", "pixels": [[0, 0]]}]});
+    let cam = Edit::from_json("ambient", &with(view.clone(), probe), &limits())
+        .unwrap()
+        .view()
+        .camera(v.bounds);
+    let centre = pixel_of(&cam, [0.0125, 0.6625, 0.0125], 80, 80);
+    let px: Vec<[u32; 2]> = (0..3).map(|d| [centre[0] + d, centre[1]]).collect();
+    let edit = |scale: f64| {
+        Edit::from_json(
+            "ambient",
+            &with(
+                view.clone(),
+                json!({"strokes": [{"color": "#ff4020", "pixels": px}], "ambient_scale": scale}),
+            ),
+            &limits(),
+        )
+        .unwrap()
+    };
+    let n = 40;
+    let slab: Vec<usize> = (0..n * n * n).filter(|&i| (i / n) % n < 5).collect();
+    let block = 16 + n * (22 + n * 16);
+    let e1 = edit(2.0);
+    let Edit::Ambient(a1) = &e1 else { panic!() };
+    let pins = ambient::pins(&v, a1);
+    assert!(!pins.is_empty() && pins.iter().all(|(i, _)| (i / n) % n >= 22), "{pins:?}");
+    let v1 = apply_edit(&v, &s, None, &e1, &NoControl).unwrap();
+    let f1 = v1.ambient.as_ref().unwrap();
+    for &i in &slab {
+        let want = s.ambient.map(|a| (a / 2.0) as f32);
+        assert_eq!(f1.rgb[i], want, "slab voxel {i}");
+    }
+    // The block took the paint (one colour: all of it).
+    let red = [0xff, 0x40, 0x20].map(srgb8_to_linear);
+    for q in 0..3 {
+        assert!((f1.rgb[block][q] - red[q]).abs() < 1e-4, "{:?}", f1.rgb[block]);
+    }
+    let v2 = apply_edit(&v, &v1.state, Some(f1), &edit(0.5), &NoControl).unwrap();
+    let f2 = v2.ambient.as_ref().unwrap();
+    for &i in &slab {
+        let want = f1.rgb[i].map(|a| (f64::from(a) * 2.0 / 0.5) as f32);
+        assert_eq!(f2.rgb[i], want, "slab voxel {i}");
+        // What shows (field × scale) is the base's uniform ambient throughout.
+        for q in 0..3 {
+            assert!((f64::from(f2.rgb[i][q]) * 0.5 - s.ambient[q]).abs() < 1e-6);
+        }
+    }
+}
+
 /// A ground slab (y < 0.12) and a block floating above it; sun from above, a little east.
 fn slab_and_block() -> (Volume, CloudState) {
     let n = 40;
@@ -455,7 +511,7 @@ fn propagation_stays_in_the_cloud_and_unreached_voxels_keep_the_fill() {
     let (u, stats) = propagate(
         dims,
         &guide,
-        Some(&density),
+        Some(&density.iter().map(|&r| r > 0.0).collect::<Vec<_>>()),
         &pins,
         &|_| keep,
         SolveOptions::default(),
@@ -534,11 +590,11 @@ fn cumulus_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
 /// edit solves it); otherwise every voxel of the box is one (a volume with density everywhere).
 fn assert_multigrid_rate(n: usize, cloud_only: bool, max_iterations: usize) {
     let (v, guide, pins) = cumulus_problem(n);
-    let density = cloud_only.then_some(&v.density[..]);
+    let cloud = cloud_only.then(|| cloud_voxels(&v));
     let (_, stats) = propagate(
         v.dims,
         &guide,
-        density,
+        cloud.as_deref(),
         &pins,
         &|_| [0.0; 3],
         SolveOptions::default(),
@@ -607,7 +663,7 @@ fn ambient_field_is_the_same_across_thread_counts() {
                 propagate(
                     v.dims,
                     &guide,
-                    Some(&v.density),
+                    Some(&cloud_voxels(&v)),
                     &pins,
                     &|_| [0.0; 3],
                     SolveOptions::default(),
