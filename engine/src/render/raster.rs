@@ -235,10 +235,11 @@ pub struct Rasterizer {
 /// [`Rasterizer::rasterize_band`] stores `ns` sample planes of `width × rows` (its span loop
 /// walks one plane's row), [`Rasterizer::rasterize_masked`] a pixel's `ns` samples side by side
 /// (it visits scattered pixels, all samples of each: one cache line per pixel instead of `ns`,
-/// and the shading pass reads them in the same order). Each sample holds one `u64` key, `(1/z as f32 bits) << 32 | !triangle id` (0 =
-/// empty): for positive `f32` the bit patterns order like the values, so the nearer triangle is
-/// the larger key, and on equal depth the earlier triangle (smaller id, larger `!id`) wins —
-/// one compare-and-select per sample instead of two arrays.
+/// and the shading pass reads them in the same order). Each sample holds one `u64` key,
+/// `(1/z as f32 bits) << 32 | !triangle id` (0 = empty): for positive `f32` the bit patterns
+/// order like the values, so the nearer triangle is the larger key, and on equal depth the
+/// earlier triangle (smaller id, larger `!id`) wins — one compare-and-select per sample instead
+/// of two arrays.
 #[derive(Debug, Default, Clone)]
 pub struct VisBuffer {
     pub y0: usize,
@@ -358,7 +359,7 @@ impl RowMask {
 
 impl Rasterizer {
     /// Project, clip and bin `mesh` for `proj`. Parallel over vertices and chunks of 4096
-    /// triangles; allocates 40 B per vertex, 64 B per screen triangle and 4 B per binning.
+    /// triangles; allocates 40 B per vertex, 80 B per screen triangle and 4 B per binning.
     pub fn new(mesh: &Mesh, proj: &Projection) -> Self {
         let planes = proj.planes();
         let pv: Vec<PVert> = mesh
