@@ -5,7 +5,7 @@
 //! (so the terrain stays continuous across the seams), because no real DEM we ship is that large.
 //!
 //! Run: `cargo bench --bench snow_terrain` (a few minutes on 2 cores). `SNOW_BENCH_8192=0` skips
-//! the 8192² descriptor (needs ~2.5 GB).
+//! the 8192² descriptor and descriptor + render (needs ~3.5 GB).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
 
 use std::path::PathBuf;
@@ -110,6 +110,16 @@ fn stages(c: &mut Criterion) {
     g.bench_function("paper_400x200_900x600", |b| {
         b.iter(|| run(&paper, &pp, &NoControl).expect("not canceled"))
     });
+    // The same with `outputs: ["render.png"]` (descriptor, colour, render, PNG): the issue's
+    // ≤ 30 ms figure.
+    let pp_img = Params::from_json(
+        &serde_json::json!({"width": 900, "height": 600, "outputs": ["render.png"]}),
+        &Limits::default(),
+    )
+    .expect("valid params");
+    g.bench_function("paper_400x200_900x600_image", |b| {
+        b.iter(|| run(&paper, &pp_img, &NoControl).expect("not canceled"))
+    });
 
     // Stages at 4096².
     let n = 4096;
@@ -178,7 +188,9 @@ fn stages(c: &mut Criterion) {
     });
     drop((d, colour, image, dem, snow));
 
-    // Scaling of the descriptor with the number of cells.
+    // Scaling with the number of cells: the descriptor alone, and descriptor + colour + 1080p
+    // render + PNG (the 4096² target's work; `snow_terrain::scaling` in the engine's tests fits
+    // the exponent).
     let mut sizes = vec![1024, 2048, 4096];
     if std::env::var("SNOW_BENCH_8192").map_or(true, |v| v != "0") {
         sizes.push(8192);
@@ -189,6 +201,17 @@ fn stages(c: &mut Criterion) {
         g.bench_with_input(BenchmarkId::new("descriptor", n), &dem, |b, dem| {
             b.iter(|| compute(dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled"))
         });
+        g.bench_with_input(
+            BenchmarkId::new("descriptor_render_png", n),
+            &dem,
+            |b, dem| {
+                b.iter(|| {
+                    let d = compute(dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
+                    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+                    encode_rgba(&render(dem, &colour, 1920, 1080))
+                })
+            },
+        );
     }
     g.finish();
 }

@@ -231,17 +231,23 @@ pub struct Rasterizer {
     bins: Vec<u32>,
 }
 
-/// A band's visibility buffer: `ns` sample planes of `width × rows`, rows `y0..y0 + rows` of
-/// the image. Each sample holds one `u64` key, `(1/z as f32 bits) << 32 | !triangle id` (0 =
-/// empty): for positive `f32` the bit patterns order like the values, so the nearer triangle is
-/// the larger key, and on equal depth the earlier triangle (smaller id, larger `!id`) wins —
-/// one compare-and-select per sample instead of two arrays.
+/// A band's visibility buffer for rows `y0..y0 + rows` of the image, `ns` samples per pixel:
+/// [`Rasterizer::rasterize_band`] stores `ns` sample planes of `width × rows` (its span loop
+/// walks one plane's row), [`Rasterizer::rasterize_masked`] a pixel's `ns` samples side by side
+/// (it visits scattered pixels, all samples of each: one cache line per pixel instead of `ns`,
+/// and the shading pass reads them in the same order). Each sample holds one `u64` key,
+/// `(1/z as f32 bits) << 32 | !triangle id` (0 = empty): for positive `f32` the bit patterns
+/// order like the values, so the nearer triangle is the larger key, and on equal depth the
+/// earlier triangle (smaller id, larger `!id`) wins — one compare-and-select per sample instead
+/// of two arrays.
 #[derive(Debug, Default, Clone)]
 pub struct VisBuffer {
     pub y0: usize,
     pub rows: usize,
     pub width: usize,
     pub ns: usize,
+    /// Samples of a pixel side by side (`rasterize_masked`) rather than in planes.
+    interleaved: bool,
     key: Vec<u64>,
     /// Scratch: per sample offset, the three edge functions' offsets of the current triangle.
     delta: Vec<[i64; 3]>,
@@ -265,12 +271,18 @@ impl VisBuffer {
 
     #[inline]
     fn index(&self, s: usize, x: usize, y: usize) -> usize {
-        (s * self.rows + (y - self.y0)) * self.width + x
+        if self.interleaved {
+            ((y - self.y0) * self.width + x) * self.ns + s
+        } else {
+            (s * self.rows + (y - self.y0)) * self.width + x
+        }
     }
 
-    /// Shape the buffer for `ns` planes of rows `y0..y0 + rows`, `width` wide; the contents are
-    /// left as they were (the caller clears what it reads).
-    fn shape(&mut self, y0: usize, rows: usize, width: usize, ns: usize) {
+    /// Shape the buffer for `ns` samples per pixel of rows `y0..y0 + rows`, `width` wide, in
+    /// planes or `interleaved`; the contents are left as they were (the caller clears what it
+    /// reads).
+    fn shape(&mut self, y0: usize, rows: usize, width: usize, ns: usize, interleaved: bool) {
+        self.interleaved = interleaved;
         self.y0 = y0;
         self.rows = rows;
         self.width = width;
@@ -482,7 +494,7 @@ impl Rasterizer {
     ) {
         let w = self.proj.width as usize;
         let rows = y1.saturating_sub(y0);
-        buf.shape(y0, rows, w, offsets.len());
+        buf.shape(y0, rows, w, offsets.len(), false);
         buf.key[..offsets.len() * rows * w].fill(0);
         self.raster_rows::<false>(band, y0, y1, offsets, None, buf);
     }
@@ -501,16 +513,15 @@ impl Rasterizer {
     ) {
         let w = self.proj.width as usize;
         let (rows, ns) = (mask.rows, offsets.len());
-        buf.shape(y0, rows, w, ns);
+        buf.shape(y0, rows, w, ns, true);
         for r in 0..rows {
             for (wi, &word) in mask.row(r).iter().enumerate() {
                 let mut m = word;
                 while m != 0 {
                     let x = wi * 64 + m.trailing_zeros() as usize;
                     m &= m - 1;
-                    for s in 0..ns {
-                        buf.key[(s * rows + r) * w + x] = 0;
-                    }
+                    let p = (r * w + x) * ns;
+                    buf.key[p..p + ns].fill(0);
                 }
             }
         }
@@ -565,13 +576,11 @@ impl Rasterizer {
         for j in 0..n {
             let id = list[if reverse { n - 1 - j } else { j }];
             let t = self.tri(id);
-            let (x0, x1) = (
-                i64::from(t.bb[0]).max(0),
-                i64::from(t.bb[1]).min(w as i64 - 1),
-            );
+            let bb = t.bb;
+            let (x0, x1) = (i64::from(bb[0]).max(0), i64::from(bb[1]).min(w as i64 - 1));
             let (ty0, ty1) = (
-                i64::from(t.bb[2]).max(y0 as i64),
-                i64::from(t.bb[3]).min(y1 as i64 - 1),
+                i64::from(bb[2]).max(y0 as i64),
+                i64::from(bb[3]).min(y1 as i64 - 1),
             );
             if x0 > x1 || ty0 > ty1 {
                 continue;
@@ -611,6 +620,12 @@ impl Rasterizer {
                 for (d, &(ox, oy)) in depth_at.iter_mut().zip(&offs[..ns]) {
                     *d = da * ox as f64 + db * oy as f64 + dc;
                 }
+                // The largest value edge k takes over a pixel's sample offsets ([0, 255]² in
+                // 1/256 pixel) beyond its value at the pixel's corner: a pixel where some edge
+                // stays negative even there holds no covered sample, and is skipped whole (a
+                // bounding-box pixel of a small triangle often is). Exact: it only skips
+                // samples the per-sample test would reject.
+                let reach = [0, 1, 2].map(|k| (e.a[k].max(0) + e.b[k].max(0)) * 255);
                 for py in ty0..=ty1 {
                     let r = py as usize - y0;
                     let sy = py * 256;
@@ -618,16 +633,24 @@ impl Rasterizer {
                     let dy = db * sy as f64;
                     m.for_each(r, x0 as usize, x1 as usize, |x| {
                         let sx = x as i64 * 256;
+                        let corner = [
+                            e.a[0] * sx + base[0] + e.c[0],
+                            e.a[1] * sx + base[1] + e.c[1],
+                            e.a[2] * sx + base[2] + e.c[2],
+                        ];
+                        if ((corner[0] + reach[0])
+                            | (corner[1] + reach[1])
+                            | (corner[2] + reach[2]))
+                            < 0
+                        {
+                            return;
+                        }
                         let dx = da * sx as f64 + dy;
-                        for (s, d) in delta.iter().enumerate() {
-                            let ev = [
-                                e.a[0] * sx + base[0] + e.c[0] + d[0],
-                                e.a[1] * sx + base[1] + e.c[1] + d[1],
-                                e.a[2] * sx + base[2] + e.c[2] + d[2],
-                            ];
+                        let px = &mut key[(r * w + x) * ns..(r * w + x + 1) * ns];
+                        for (s, (d, slot)) in delta.iter().zip(px).enumerate() {
+                            let ev = [corner[0] + d[0], corner[1] + d[1], corner[2] + d[2]];
                             let z = (dx + depth_at[s]) as f32;
                             if ((ev[0] | ev[1] | ev[2]) >= 0) & (z > 0.0) {
-                                let slot = &mut key[(s * rows + r) * w + x];
                                 *slot = (*slot).max((u64::from(z.to_bits()) << 32) | low);
                             }
                         }

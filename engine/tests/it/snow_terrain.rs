@@ -293,6 +293,162 @@ fn cpu_ms() -> f64 {
     ticks * 10.0
 }
 
+/// The 4096² target's work on `dem`: descriptor (default parameters), colour, 1920×1080 render
+/// (the bench's camera and sun) and PNG. Returns the PNG and the wall-clock ms at the end of
+/// each of the four stages (cumulative).
+fn descriptor_render_png(dem: &phenomena_engine::geom::Dem) -> (Vec<u8>, [f64; 4]) {
+    use phenomena_engine::formats::png_write::encode_rgba;
+    use phenomena_engine::render::camera::Camera;
+    use phenomena_engine::render::terrain::{
+        render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
+    };
+    use phenomena_engine::snow_terrain::colour::albedo;
+    use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
+    let t = std::time::Instant::now();
+    let ms = || t.elapsed().as_secs_f64() * 1e3;
+    let d = compute(dem, &DescriptorParams::default(), &NoControl, (0.0, 1.0)).unwrap();
+    let t1 = ms();
+    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+    let t2 = ms();
+    let scene = TerrainScene {
+        width: dem.width,
+        height: dem.height,
+        dx: dem.dx,
+        dy: dem.dy,
+        heights: &dem.heights,
+        albedo: &colour,
+    };
+    let accel = TerrainAccel::new(&scene);
+    let (center, radius) = scene.bounding_sphere();
+    let camera = Camera::orbit(
+        center,
+        200.0,
+        30.0,
+        Camera::auto_distance(radius, 40.0),
+        40.0,
+    );
+    let light = Lighting {
+        sun_dir: sun_direction(180.0, 35.0),
+        ..Lighting::default()
+    };
+    let img = render_with(&accel, &camera, &light, 1920, 1080, &NoControl, (0.0, 1.0)).unwrap();
+    let t3 = ms();
+    let png = encode_rgba(&img);
+    (png, [t1, t2, t3, ms()])
+}
+
+/// Peak resident set of this process so far (`VmHWM`), MiB.
+fn peak_rss_mib() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// Least-squares slope of `ln y` on `ln x`: the exponent `b` of `y ∝ x^b`.
+fn loglog_slope(points: &[(f64, f64)]) -> f64 {
+    let n = points.len() as f64;
+    let (lx, ly): (Vec<f64>, Vec<f64>) = points.iter().map(|&(x, y)| (x.ln(), y.ln())).unzip();
+    let (mx, my) = (lx.iter().sum::<f64>() / n, ly.iter().sum::<f64>() / n);
+    let sxy: f64 = lx.iter().zip(&ly).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = lx.iter().map(|x| (x - mx) * (x - mx)).sum();
+    sxy / sxx
+}
+
+/// The issue's scaling target ("cost per cell roughly constant from 1024² to 8192²"):
+/// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture snow_terrain::scaling`.
+/// For N = 1024, 2048, 4096, 8192 (`SNOW_SCALING_SIZES=1024,2048` to choose) on mirrored
+/// Tanzawa (as the 4096² case): the descriptor alone, and the descriptor with colour, the
+/// 1920×1080 render and the PNG ([`descriptor_render_png`]); the median of `SNOW_SCALING_REPS` runs (default 3, one
+/// warm-up first) in wall and process-CPU time, ns per cell, the peak RSS so far (sizes run in
+/// increasing order, so it is the peak of the largest size run), and the least-squares exponent
+/// b of t ∝ cells^b over the sizes run.
+#[test]
+#[ignore]
+fn scaling() {
+    let src = dem("tanzawa_sagami_aster_gdem2.tif");
+    let sizes: Vec<usize> = std::env::var("SNOW_SCALING_SIZES")
+        .ok()
+        .map(|v| v.split(',').filter_map(|s| s.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![1024, 2048, 4096, 8192]);
+    let reps: usize = std::env::var("SNOW_SCALING_REPS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3)
+        .max(1);
+    println!(
+        "rayon threads: {}, reps {reps}",
+        rayon::current_num_threads()
+    );
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(|a, b| a.total_cmp(b));
+        v[v.len() / 2]
+    };
+    // Per size: cells, descriptor (wall, cpu), all (wall, cpu), ms.
+    let mut rows: Vec<(f64, [f64; 4])> = Vec::new();
+    for &n in &sizes {
+        let dem_n = mirrored(&src, n, n);
+        let cells = (n * n) as f64;
+        let (mut dw, mut dc, mut aw, mut ac) = (vec![], vec![], vec![], vec![]);
+        for i in 0..=reps {
+            let c0 = cpu_ms();
+            let (_, s) = descriptor_render_png(&dem_n);
+            let cpu_all = cpu_ms() - c0;
+            let c0 = cpu_ms();
+            let t = std::time::Instant::now();
+            let d = phenomena_engine::snow_terrain::descriptor::compute(
+                &dem_n,
+                &Default::default(),
+                &NoControl,
+                (0.0, 1.0),
+            )
+            .unwrap();
+            let desc_wall = t.elapsed().as_secs_f64() * 1e3;
+            let cpu_desc = cpu_ms() - c0;
+            assert_eq!(d.t.len(), n * n);
+            drop(d);
+            if i == 0 {
+                continue; // warm-up
+            }
+            dw.push(desc_wall);
+            dc.push(cpu_desc);
+            aw.push(s[3]);
+            ac.push(cpu_all);
+        }
+        let m = [median(dw), median(dc), median(aw), median(ac)];
+        println!(
+            "{n}^2 ({cells:.0} cells): descriptor {:.0} ms wall ({:.1} ns/cell), {:.0} ms cpu; \
+             descriptor+render+png {:.0} ms wall ({:.1} ns/cell), {:.0} ms cpu; peak RSS {:.0} MiB; \
+             load {}",
+            m[0],
+            m[0] * 1e6 / cells,
+            m[1],
+            m[2],
+            m[2] * 1e6 / cells,
+            m[3],
+            peak_rss_mib(),
+            std::fs::read_to_string("/proc/loadavg").unwrap_or_default().trim()
+        );
+        rows.push((cells, m));
+    }
+    if rows.len() >= 2 {
+        let fit = |k: usize| loglog_slope(&rows.iter().map(|r| (r.0, r.1[k])).collect::<Vec<_>>());
+        println!(
+            "exponent b (t ∝ cells^b): descriptor {:.3} wall, {:.3} cpu; \
+             descriptor+render+png {:.3} wall, {:.3} cpu",
+            fit(0),
+            fit(1),
+            fit(2),
+            fit(3)
+        );
+        // The fit itself: exact on a synthetic power law.
+        let synth: Vec<(f64, f64)> = rows.iter().map(|r| (r.0, 3.0 * r.0.powf(0.9))).collect();
+        assert!((loglog_slope(&synth) - 0.9).abs() < 1e-9);
+    }
+}
+
 /// The issue's two speed targets, in process (release):
 /// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture snow_terrain::timings`.
 /// Paper case: `run` (descriptor, colour, render, every default output) on Tanzawa cropped to
@@ -362,49 +518,12 @@ fn timings() {
     if std::env::var("SNOW_TIMINGS_4096").is_ok_and(|v| v == "0") {
         return;
     }
-    use phenomena_engine::formats::png_write::encode_rgba;
-    use phenomena_engine::render::camera::Camera;
-    use phenomena_engine::render::terrain::{
-        render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
-    };
-    use phenomena_engine::snow_terrain::colour::albedo;
-    use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
     let big = mirrored(&src, 4096, 4096);
-    let dp = DescriptorParams::default();
     let mut walls = Vec::new();
     let c0 = cpu_ms();
     let reps = 5;
     for i in 0..=reps {
-        let t = Instant::now();
-        let d = compute(&big, &dp, &NoControl, (0.0, 1.0)).unwrap();
-        let t1 = t.elapsed().as_secs_f64() * 1e3;
-        let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
-        let t2 = t.elapsed().as_secs_f64() * 1e3;
-        let scene = TerrainScene {
-            width: big.width,
-            height: big.height,
-            dx: big.dx,
-            dy: big.dy,
-            heights: &big.heights,
-            albedo: &colour,
-        };
-        let accel = TerrainAccel::new(&scene);
-        let (center, radius) = scene.bounding_sphere();
-        let camera = Camera::orbit(
-            center,
-            200.0,
-            30.0,
-            Camera::auto_distance(radius, 40.0),
-            40.0,
-        );
-        let light = Lighting {
-            sun_dir: sun_direction(180.0, 35.0),
-            ..Lighting::default()
-        };
-        let img = render_with(&accel, &camera, &light, 1920, 1080, &NoControl, (0.0, 1.0)).unwrap();
-        let t3 = t.elapsed().as_secs_f64() * 1e3;
-        let png = encode_rgba(&img);
-        let t4 = t.elapsed().as_secs_f64() * 1e3;
+        let (png, s) = descriptor_render_png(&big);
         if i == 0 {
             std::fs::write(
                 std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("tanzawa_4096_1080p.png"),
@@ -413,12 +532,14 @@ fn timings() {
             .unwrap();
             continue; // warm-up run, not counted
         }
-        walls.push(t4);
+        walls.push(s[3]);
         println!(
-            "4096^2: descriptor {t1:.0}, colour {:.0}, render {:.0}, png {:.0}, total {t4:.0} ms",
-            t2 - t1,
-            t3 - t2,
-            t4 - t3
+            "4096^2: descriptor {:.0}, colour {:.0}, render {:.0}, png {:.0}, total {:.0} ms",
+            s[0],
+            s[1] - s[0],
+            s[2] - s[1],
+            s[3] - s[2],
+            s[3]
         );
     }
     let cpu = (cpu_ms() - c0) / f64::from(reps + 1);
