@@ -27,7 +27,7 @@ use crate::geom::mesh::Mesh;
 /// Largest shadow-map side, texels.
 pub const MAX_SHADOW_DIM: usize = 4096;
 /// Cap on `tan α` in the slope-scaled bias.
-const MAX_BIAS_TAN: f32 = 8.0;
+pub const MAX_BIAS_TAN: f32 = 8.0;
 
 /// A depth-only orthographic shadow map (see the module doc).
 #[derive(Debug, Clone, Default)]
@@ -47,28 +47,6 @@ pub struct ShadowMap {
     pub depth: Vec<f32>,
     /// Scratch: per-vertex (grid x, grid y, depth).
     proj: Vec<[f32; 3]>,
-}
-
-/// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
-/// |x| < 2³¹.
-#[inline]
-fn ffloor(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t > x {
-        t - 1.0
-    } else {
-        t
-    }
-}
-
-#[inline]
-fn fceil(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t < x {
-        t + 1.0
-    } else {
-        t
-    }
 }
 
 #[inline]
@@ -142,63 +120,13 @@ impl ShadowMap {
                 .map(|&p| [dot(p, su) - gu0, dot(p, st) - gt0, dot(p, w)]),
         );
         let (wd, ht) = (self.width, self.height);
-        let (xmax_f, ymax_f) = (wd as f32 - 1.0, ht as f32 - 1.0);
         let proj = &self.proj;
         let depth = &mut self.depth;
         for tri in &mesh.triangles {
             let a = proj[tri[0] as usize];
             let b = proj[tri[1] as usize];
             let c = proj[tri[2] as usize];
-            let x0 = fceil(a[0].min(b[0]).min(c[0])).max(0.0);
-            let x1 = ffloor(a[0].max(b[0]).max(c[0])).min(xmax_f);
-            if x0 > x1 {
-                continue;
-            }
-            let y0 = fceil(a[1].min(b[1]).min(c[1])).max(0.0);
-            let y1 = ffloor(a[1].max(b[1]).max(c[1])).min(ymax_f);
-            if y0 > y1 {
-                continue;
-            }
-            let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
-            if area.abs() < 1e-12 {
-                continue;
-            }
-            let ia = 1.0 / area;
-            // Normalised edge functions e_k(x, y) = A_k x + B_k y + C_k, ≥ 0 inside.
-            let e = |p: [f32; 3], q: [f32; 3]| {
-                let aa = (p[1] - q[1]) * ia;
-                let bb = (q[0] - p[0]) * ia;
-                let cc = (p[0] * q[1] - p[1] * q[0]) * ia;
-                (aa, bb, cc)
-            };
-            let (a0, b0, c0) = e(b, c); // weight of a
-            let (a1, b1, c1) = e(c, a); // weight of b
-            let (a2, b2, c2) = e(a, b); // weight of c
-                                        // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
-            let dzx = a[2] * a0 + b[2] * a1 + c[2] * a2;
-            let dzy = a[2] * b0 + b[2] * b1 + c[2] * b2;
-            let dzc = a[2] * c0 + b[2] * c1 + c[2] * c2;
-            const E: f32 = -1e-5;
-            for y in y0 as usize..=y1 as usize {
-                let yf = y as f32;
-                let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
-                let rz = dzy * yf + dzc;
-                let row = &mut depth[y * wd..(y + 1) * wd];
-                for (x, d) in row
-                    .iter_mut()
-                    .enumerate()
-                    .take(x1 as usize + 1)
-                    .skip(x0 as usize)
-                {
-                    let xf = x as f32;
-                    if a0 * xf + r0 >= E && a1 * xf + r1 >= E && a2 * xf + r2 >= E {
-                        let z = dzx * xf + rz;
-                        if z > *d {
-                            *d = z;
-                        }
-                    }
-                }
-            }
+            raster_triangle(depth, wd, ht, a, b, c);
         }
     }
 
@@ -228,4 +156,130 @@ impl ShadowMap {
         }
         self.depth[y as usize * self.width + x as usize] > dot(p, self.w) + bias
     }
+}
+
+#[inline(always)]
+fn min3(a: f32, b: f32, c: f32) -> f32 {
+    let m = if b < a { b } else { a };
+    if c < m {
+        c
+    } else {
+        m
+    }
+}
+
+#[inline(always)]
+fn max3(a: f32, b: f32, c: f32) -> f32 {
+    let m = if b > a { b } else { a };
+    if c > m {
+        c
+    } else {
+        m
+    }
+}
+
+/// Tolerance of the inclusive edge tests (normalised barycentric units).
+const EDGE_EPS: f32 = -1e-5;
+
+/// Draw one projected triangle (grid x, grid y, depth per corner; texel centres at integers) into
+/// the `wd × ht` max-depth buffer `depth` (module doc).
+///
+/// Most triangles of a fine mesh cover a texel or two (1 M triangles on a 1024² map: about one
+/// texel each), so their cost is the setup and the branches, not the texels. A triangle whose
+/// bounding box holds at most 2 × 2 texel centres is drawn branch-free: the four candidate centres
+/// are always tested, the ones outside the box or the triangle masked off (they write back the
+/// value they read), which avoids two data-dependent branches per triangle (box empty? centre
+/// inside?) that mispredict about half the time. Larger triangles take the loop. Both evaluate
+/// the same expressions, so the depths are the same bits either way.
+#[inline(always)]
+fn raster_triangle(depth: &mut [f32], wd: usize, ht: usize, a: [f32; 3], b: [f32; 3], c: [f32; 3]) {
+    // Texel range of the bounding box, in integers (grid coordinates lie in [0, MAX_SHADOW_DIM],
+    // the vertices being inside the bounds the map was fitted to).
+    let (xmax, ymax) = (wd as i32 - 1, ht as i32 - 1);
+    let x0 = iceil(min3(a[0], b[0], c[0])).max(0);
+    let x1 = ifloor(max3(a[0], b[0], c[0])).min(xmax);
+    let y0 = iceil(min3(a[1], b[1], c[1])).max(0);
+    let y1 = ifloor(max3(a[1], b[1], c[1])).min(ymax);
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    let small = x1 <= x0.saturating_add(1) && y1 <= y0.saturating_add(1);
+    if !small && (x0 > x1 || y0 > y1 || area.abs() < 1e-12) {
+        return;
+    }
+    let ia = 1.0 / area;
+    // Normalised edge functions e_k(x, y) = A_k x + B_k y + C_k, ≥ 0 inside.
+    let e = |p: [f32; 3], q: [f32; 3]| {
+        let aa = (p[1] - q[1]) * ia;
+        let bb = (q[0] - p[0]) * ia;
+        let cc = (p[0] * q[1] - p[1] * q[0]) * ia;
+        (aa, bb, cc)
+    };
+    let (a0, b0, c0) = e(b, c); // weight of a
+    let (a1, b1, c1) = e(c, a); // weight of b
+    let (a2, b2, c2) = e(a, b); // weight of c
+    // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
+    let dzx = a[2] * a0 + b[2] * a1 + c[2] * a2;
+    let dzy = a[2] * b0 + b[2] * b1 + c[2] * b2;
+    let dzc = a[2] * c0 + b[2] * c1 + c[2] * c2;
+    if small {
+        // The 2 × 2 candidate centres (x0 + dx, y0 + dy), evaluated four at a time.
+        let ok = area.abs() >= 1e-12;
+        let (xf0, yf0) = (x0 as f32, y0 as f32);
+        let xs = [xf0, xf0 + 1.0, xf0, xf0 + 1.0];
+        let ys = [yf0, yf0, yf0 + 1.0, yf0 + 1.0];
+        let mut z = [0f32; 4];
+        let mut inside = [false; 4];
+        for q in 0..4 {
+            let (xf, yf) = (xs[q], ys[q]);
+            let e0 = a0 * xf + (b0 * yf + c0);
+            let e1 = a1 * xf + (b1 * yf + c1);
+            let e2 = a2 * xf + (b2 * yf + c2);
+            z[q] = dzx * xf + (dzy * yf + dzc);
+            inside[q] = (e0 >= EDGE_EPS) & (e1 >= EDGE_EPS) & (e2 >= EDGE_EPS);
+        }
+        let xi = [x0.min(xmax), x0.saturating_add(1).min(xmax)];
+        let yi = [y0.min(ymax), y0.saturating_add(1).min(ymax)];
+        let xin = [x0 <= x1, x0 < x1];
+        let yin = [y0 <= y1, y0 < y1];
+        for q in 0..4 {
+            let (dx, dy) = (q & 1, q >> 1);
+            let m = ok & inside[q] & xin[dx] & yin[dy];
+            let idx = yi[dy] as usize * wd + xi[dx] as usize;
+            if let Some(d) = depth.get_mut(idx) {
+                *d = if m & (z[q] > *d) { z[q] } else { *d };
+            }
+        }
+        return;
+    }
+    let (xa, xb) = (x0 as usize, x1 as usize);
+    for y in y0 as usize..=y1 as usize {
+        let yf = y as f32;
+        let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
+        let rz = dzy * yf + dzc;
+        let Some(row) = depth.get_mut(y * wd + xa..=y * wd + xb) else {
+            return;
+        };
+        for (k, d) in row.iter_mut().enumerate() {
+            let xf = (xa + k) as f32;
+            if a0 * xf + r0 >= EDGE_EPS && a1 * xf + r1 >= EDGE_EPS && a2 * xf + r2 >= EDGE_EPS {
+                let z = dzx * xf + rz;
+                if z > *d {
+                    *d = z;
+                }
+            }
+        }
+    }
+}
+
+/// `⌈x⌉` as an integer (exact for |x| < 2³¹; saturates beyond).
+#[inline(always)]
+fn iceil(x: f32) -> i32 {
+    let t = x as i32;
+    t.saturating_add(i32::from((t as f32) < x))
+}
+
+/// `⌊x⌋` as an integer (exact for |x| < 2³¹; saturates beyond).
+#[inline(always)]
+fn ifloor(x: f32) -> i32 {
+    let t = x as i32;
+    t.saturating_sub(i32::from((t as f32) > x))
 }

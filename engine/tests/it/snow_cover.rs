@@ -3,7 +3,7 @@
 //! stabilization, the mass balance, determinism across runs and rayon thread counts, and (ignored)
 //! timings at the sizes.
 
-use phenomena_engine::geom::mesh::{Mesh, MeshPart};
+use phenomena_engine::geom::mesh::Mesh;
 use phenomena_engine::snow_cover::maps::{LINK_LOST, LINK_WALL, NEIGHBOURS};
 use phenomena_engine::snow_cover::probability::{angle_weights, main_direction};
 use phenomena_engine::snow_cover::{
@@ -16,134 +16,9 @@ use std::time::Instant;
 // ---------------------------------------------------------------------------------------------
 // Scene builders
 
-#[derive(Default)]
-struct Builder {
-    mesh: Mesh,
-}
-
-impl Builder {
-    /// A quad with corners in order around it; flipped if needed so its normal points along `out`.
-    fn quad(&mut self, q: [[f32; 3]; 4], out: [f32; 3]) {
-        let base = self.mesh.positions.len() as u32;
-        self.mesh.positions.extend_from_slice(&q);
-        let u = sub(q[1], q[0]);
-        let v = sub(q[2], q[0]);
-        let n = cross(u, v);
-        let (a, b, c, d) = (base, base + 1, base + 2, base + 3);
-        if dot(n, out) >= 0.0 {
-            self.mesh.triangles.push([a, b, c]);
-            self.mesh.triangles.push([a, c, d]);
-        } else {
-            self.mesh.triangles.push([a, c, b]);
-            self.mesh.triangles.push([a, d, c]);
-        }
-    }
-
-    /// A horizontal grid of `n × m` quads at height `y(x, z)` over [x0, x1] × [z0, z1], facing up.
-    fn grid(&mut self, x: [f32; 2], z: [f32; 2], n: usize, m: usize, y: impl Fn(f32, f32) -> f32) {
-        let base = self.mesh.positions.len() as u32;
-        for j in 0..=m {
-            for i in 0..=n {
-                let px = x[0] + (x[1] - x[0]) * i as f32 / n as f32;
-                let pz = z[0] + (z[1] - z[0]) * j as f32 / m as f32;
-                self.mesh.positions.push([px, y(px, pz), pz]);
-            }
-        }
-        let row = (n + 1) as u32;
-        for j in 0..m as u32 {
-            for i in 0..n as u32 {
-                let a = base + j * row + i;
-                // (a, a+row, a+1) has normal +Y (z grows with j, x with i).
-                self.mesh.triangles.push([a, a + row, a + 1]);
-                self.mesh.triangles.push([a + 1, a + row, a + row + 1]);
-            }
-        }
-    }
-
-    /// A closed axis-aligned box with outward normals (12 triangles).
-    fn cuboid(&mut self, lo: [f32; 3], hi: [f32; 3]) {
-        let p = |x: usize, y: usize, z: usize| {
-            [
-                if x == 0 { lo[0] } else { hi[0] },
-                if y == 0 { lo[1] } else { hi[1] },
-                if z == 0 { lo[2] } else { hi[2] },
-            ]
-        };
-        self.quad(
-            [p(0, 1, 0), p(1, 1, 0), p(1, 1, 1), p(0, 1, 1)],
-            [0.0, 1.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(1, 0, 0), p(1, 0, 1), p(0, 0, 1)],
-            [0.0, -1.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(0, 1, 0), p(0, 1, 1), p(0, 0, 1)],
-            [-1.0, 0.0, 0.0],
-        );
-        self.quad(
-            [p(1, 0, 0), p(1, 1, 0), p(1, 1, 1), p(1, 0, 1)],
-            [1.0, 0.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(1, 0, 0), p(1, 1, 0), p(0, 1, 0)],
-            [0.0, 0.0, -1.0],
-        );
-        self.quad(
-            [p(0, 0, 1), p(1, 0, 1), p(1, 1, 1), p(0, 1, 1)],
-            [0.0, 0.0, 1.0],
-        );
-    }
-
-    fn floor(&mut self, size: f32) {
-        self.quad(
-            [
-                [0.0, 0.0, 0.0],
-                [size, 0.0, 0.0],
-                [size, 0.0, size],
-                [0.0, 0.0, size],
-            ],
-            [0.0, 1.0, 0.0],
-        );
-    }
-
-    /// A table: top slab [x0, x1] × [z0, z1] from `h − 0.05` to `h`, four 0.1 m legs.
-    fn table(&mut self, x: [f32; 2], z: [f32; 2], h: f32) {
-        self.cuboid([x[0], h - 0.05, z[0]], [x[1], h, z[1]]);
-        for (lx, lz) in [
-            (x[0], z[0]),
-            (x[1] - 0.1, z[0]),
-            (x[0], z[1] - 0.1),
-            (x[1] - 0.1, z[1] - 0.1),
-        ] {
-            self.cuboid([lx, 0.0, lz], [lx + 0.1, h - 0.05, lz + 0.1]);
-        }
-    }
-
-    fn build(mut self) -> Mesh {
-        self.mesh.parts = vec![MeshPart {
-            name: "scene".into(),
-            first_triangle: 0,
-            triangle_count: self.mesh.triangles.len(),
-            base_color: [0.8, 0.8, 0.8, 1.0],
-        }];
-        self.mesh
-    }
-}
-
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use phenomena_engine::snow_cover::scenes::{
+    animation_scene, bumpy_scene, million_scene, paper_scene, pile_plane, put_pile, SceneBuilder as Builder,
+};
 
 /// Floor 10 × 10 m at y = 0 and a closed box roof [3, 7]² from y = 2 to 2.2 (floating).
 fn roof_scene() -> Mesh {
@@ -699,19 +574,6 @@ fn cancellation_stops_the_run() {
 // `cargo test --release -p phenomena-engine --test it snow_cover::timings -- --ignored --nocapture`)
 
 /// A bumpy grid of `n × m` quads over 10 × 10 m plus `boxes` boxes.
-fn bumpy_scene(n: usize, m: usize, boxes: usize) -> Mesh {
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], n, m, |x, z| {
-        0.2 * (x * 1.3).sin() * (z * 0.9).cos()
-    });
-    for k in 0..boxes {
-        let x = 1.0 + (k % 4) as f32 * 2.2;
-        let z = 1.0 + (k / 4 % 4) as f32 * 2.2;
-        b.cuboid([x, 0.5, z], [x + 1.2, 0.8 + 0.1 * k as f32, z + 0.9]);
-    }
-    b.build()
-}
-
 fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut best = f64::MAX;
     let mut out = None;
@@ -730,19 +592,7 @@ fn timings() {
     println!("rayon threads: {}", rayon::current_num_threads());
 
     // Paper scale: 5,114 triangles, K = 5, 128² maps.
-    let mut b = Builder {
-        mesh: bumpy_scene(50, 51, 1),
-    };
-    b.quad(
-        [
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [1.0, 1.0, 1.0],
-            [0.0, 1.0, 1.0],
-        ],
-        [0.0, 1.0, 0.0],
-    );
-    let mesh = b.build();
+    let mesh = paper_scene();
     assert_eq!(mesh.triangles.len(), 5114);
     let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
     let dirs = snowfall_directions(5, 10.0, None, 1);
@@ -755,7 +605,7 @@ fn timings() {
     );
 
     // 1M triangles, K = 64, 1024².
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let (t, mut maps) = best_of(1, || build_snow_maps(&mesh, 1024, &NoControl).unwrap());
     println!(
         "regions {} tris, 1024² ({} layers): {t:.0} ms",
@@ -773,30 +623,16 @@ fn timings() {
 
     // A 1 m pile on a 1024² map stabilized to convergence: 1 m of snow on a 1 m disc in the middle
     // of a 10.24 m plane (cell 1 cm), and 1 m everywhere on a table scene.
-    let mut b = Builder::default();
-    b.floor(10.24);
-    let plane = b.build();
+    let plane = pile_plane();
     let mut maps = build_snow_maps(&plane, 1024, &NoControl).unwrap();
-    for j in 0..1024 {
-        for i in 0..1024 {
-            let [x, z] = maps.centre(i, j);
-            if (x - 5.12).powi(2) + (z - 5.12).powi(2) < 0.25 {
-                maps.layers[0].snow[j * 1024 + i] = 1_000_000;
-            }
-        }
-    }
+    put_pile(&mut maps);
     let (t, rep) = best_of(1, || {
         stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
     });
     println!("stabilize 1024², 1 m pile (disc r = 0.5 m): {t:.0} ms, {rep:?} (target ≤ 500)");
 
     // Animation: 12,646 triangles, two 200² maps, steps of accumulate + stabilize.
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], 203, 31, |x, z| {
-        0.02 * (x * 3.0).sin() * z.cos()
-    });
-    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
-    let mesh = b.build();
+    let mesh = animation_scene();
     assert_eq!(mesh.triangles.len(), 12_646);
     let p = ModelParams {
         resolution: 200,
@@ -819,6 +655,25 @@ fn timings() {
         rep.unconverged_steps,
         rep.timings
     );
+}
+
+/// Only the 1 M-triangle probability, for profilers: `SNOW_COVER_K` directions (default 64),
+/// `SNOW_COVER_REPS` repetitions (default 1). E.g. instruction counts on one thread:
+/// `RAYON_NUM_THREADS=1 SNOW_COVER_K=2 valgrind --tool=callgrind <it binary> --ignored --exact
+/// snow_cover::probability_million`.
+#[test]
+#[ignore]
+fn probability_million() {
+    let env = |k: &str, d: usize| std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
+    let (k, reps) = (env("SNOW_COVER_K", 64), env("SNOW_COVER_REPS", 1));
+    let mesh = million_scene();
+    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
+    let dirs = snowfall_directions(k, 10.0, None, 1);
+    let (t, _) = best_of(reps, || {
+        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
+    });
+    let sum: f64 = maps.layers[0].probability.iter().map(|&p| f64::from(p)).sum();
+    println!("probability {} tris, K={k}, 1024²: {t:.0} ms (P sum {sum})", mesh.triangles.len());
 }
 
 /// 1 m of snow everywhere on a 1024² table scene, stabilized to convergence: minutes (the coarse
@@ -886,7 +741,7 @@ fn settle_experiment() {
 #[ignore]
 fn probability_experiment() {
     use phenomena_engine::snow_cover::shadow::ShadowMap;
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
     let bounds = mesh.bounds().unwrap();
     let mut sm = ShadowMap::default();
@@ -1124,7 +979,7 @@ fn upward_ray_casting_baseline() {
     );
 
     // 1M triangles, K = 64, 1024²: rays for a 1/64 sample of the cells, extrapolated.
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
     let dirs = snowfall_directions(64, 10.0, None, 1);
     let (t_ours, _) = best_of(1, || {
