@@ -5,6 +5,9 @@
 //! for the issue's 1 M-triangle case: a bumpy 10 × 10 m grid with boxes on it (the boxes' tops and
 //! undersides give a second layer and real occlusion), and a table on a gently waved floor.
 
+use rayon::prelude::*;
+
+use super::SnowMaps;
 use crate::geom::mesh::{Mesh, MeshPart};
 
 /// Builds a [`Mesh`] from quads, grids and boxes (one part, grey).
@@ -200,7 +203,7 @@ pub fn pile_plane() -> Mesh {
 }
 
 /// Put a 1 m pile (a disc of radius 0.5 m at the centre of the map) on layer 0 of `maps`.
-pub fn put_pile(maps: &mut super::SnowMaps) {
+pub fn put_pile(maps: &mut SnowMaps) {
     let (nx, nz) = (maps.nx, maps.nz);
     let mid = [
         maps.origin[0] + 0.5 * nx as f32 * maps.cell,
@@ -215,3 +218,76 @@ pub fn put_pile(maps: &mut super::SnowMaps) {
         }
     }
 }
+
+// The honest baseline (issue 4): upward ray casting through a BVH, K rays per point toward the
+// sky along the same snowfall directions.
+
+/// Snow probability by upward ray casting: for each point, the share of the K directions along
+/// which a ray toward the sky (against the fall direction) leaves the scene unblocked. The ray
+/// starts `eps` above the point (the surface itself must not occlude). BVH: `obvhs`'s compressed
+/// wide BVH (CWBVH, SAH/PLOC "medium" build); rays in parallel over points (rayon).
+pub fn upward_ray_casting(
+    bvh: &obvhs::cwbvh::CwBvh,
+    tris: &[obvhs::triangle::Triangle],
+    points: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    eps: f32,
+) -> Vec<f32> {
+    use obvhs::ray::Ray;
+    points
+        .par_iter()
+        .map(|p| {
+            let o = glam::Vec3A::new(p[0], p[1] + eps, p[2]);
+            let open = dirs
+                .iter()
+                .filter(|d| {
+                    // `+ 0.0` turns −0 into +0: obvhs 0.4's CWBVH traversal misses every hit for a
+                    // direction with a −0 component (measured; its BVH2 and brute force do not).
+                    let up = glam::Vec3A::new(-d[0] + 0.0, -d[1] + 0.0, -d[2] + 0.0);
+                    bvh.ray_traverse_miss(Ray::new_inf(o, up), |ray, id| {
+                        tris[bvh.primitive_indices[id] as usize].intersect(ray)
+                    })
+                })
+                .count();
+            open as f32 / dirs.len() as f32
+        })
+        .collect()
+}
+
+/// The triangles of `mesh` for `obvhs` and their CWBVH.
+pub fn obvhs_scene(mesh: &Mesh) -> (obvhs::cwbvh::CwBvh, Vec<obvhs::triangle::Triangle>) {
+    let v = |i: u32| {
+        let p = mesh.positions[i as usize];
+        glam::Vec3A::new(p[0], p[1], p[2])
+    };
+    let tris: Vec<obvhs::triangle::Triangle> = mesh
+        .triangles
+        .iter()
+        .map(|t| obvhs::triangle::Triangle {
+            v0: v(t[0]),
+            v1: v(t[1]),
+            v2: v(t[2]),
+        })
+        .collect();
+    let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+        &tris,
+        obvhs::BvhBuildParams::medium_build(),
+        &mut std::time::Duration::default(),
+    );
+    (bvh, tris)
+}
+
+/// Snow-map cell centres on their base (every layer): the same receivers as ours.
+pub fn map_points(maps: &SnowMaps, stride: usize) -> Vec<[f32; 3]> {
+    let mut pts = Vec::new();
+    for l in &maps.layers {
+        for c in (0..maps.len()).step_by(stride) {
+            if !l.base[c].is_nan() {
+                let [x, z] = maps.centre(c % maps.nx, c / maps.nx);
+                pts.push([x, l.base[c], z]);
+            }
+        }
+    }
+    pts
+}
+

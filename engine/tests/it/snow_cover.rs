@@ -17,7 +17,8 @@ use std::time::Instant;
 // Scene builders
 
 use phenomena_engine::snow_cover::scenes::{
-    animation_scene, bumpy_scene, million_scene, paper_scene, pile_plane, put_pile, SceneBuilder as Builder,
+    animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
+    upward_ray_casting, SceneBuilder as Builder,
 };
 
 /// Floor 10 × 10 m at y = 0 and a closed box roof [3, 7]² from y = 2 to 2.2 (floating).
@@ -805,75 +806,6 @@ fn animation_timing() {
 // sky along the same snowfall directions. Run with
 // `cargo test --release -p phenomena-engine --test it snow_cover::upward_ray_casting_baseline -- --ignored --nocapture`
 
-/// Snow probability by upward ray casting: for each point, the share of the K directions along
-/// which a ray toward the sky (against the fall direction) leaves the scene unblocked. The ray
-/// starts `eps` above the point (the surface itself must not occlude). BVH: `obvhs`'s compressed
-/// wide BVH (CWBVH, SAH/PLOC "medium" build); rays in parallel over points (rayon).
-fn upward_ray_casting(
-    bvh: &obvhs::cwbvh::CwBvh,
-    tris: &[obvhs::triangle::Triangle],
-    points: &[[f32; 3]],
-    dirs: &[[f32; 3]],
-    eps: f32,
-) -> Vec<f32> {
-    use obvhs::ray::Ray;
-    use rayon::prelude::*;
-    points
-        .par_iter()
-        .map(|p| {
-            let o = glam::Vec3A::new(p[0], p[1] + eps, p[2]);
-            let open = dirs
-                .iter()
-                .filter(|d| {
-                    // `+ 0.0` turns −0 into +0: obvhs 0.4's CWBVH traversal misses every hit for a
-                    // direction with a −0 component (measured; its BVH2 and brute force do not).
-                    let up = glam::Vec3A::new(-d[0] + 0.0, -d[1] + 0.0, -d[2] + 0.0);
-                    bvh.ray_traverse_miss(Ray::new_inf(o, up), |ray, id| {
-                        tris[bvh.primitive_indices[id] as usize].intersect(ray)
-                    })
-                })
-                .count();
-            open as f32 / dirs.len() as f32
-        })
-        .collect()
-}
-
-fn obvhs_scene(mesh: &Mesh) -> (obvhs::cwbvh::CwBvh, Vec<obvhs::triangle::Triangle>) {
-    let v = |i: u32| {
-        let p = mesh.positions[i as usize];
-        glam::Vec3A::new(p[0], p[1], p[2])
-    };
-    let tris: Vec<obvhs::triangle::Triangle> = mesh
-        .triangles
-        .iter()
-        .map(|t| obvhs::triangle::Triangle {
-            v0: v(t[0]),
-            v1: v(t[1]),
-            v2: v(t[2]),
-        })
-        .collect();
-    let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-        &tris,
-        obvhs::BvhBuildParams::medium_build(),
-        &mut std::time::Duration::default(),
-    );
-    (bvh, tris)
-}
-
-/// Snow-map cell centres on their base (every layer): the same receivers as ours.
-fn map_points(maps: &SnowMaps, stride: usize) -> Vec<[f32; 3]> {
-    let mut pts = Vec::new();
-    for l in &maps.layers {
-        for c in (0..maps.len()).step_by(stride) {
-            if !l.base[c].is_nan() {
-                let [x, z] = maps.centre(c % maps.nx, c / maps.nx);
-                pts.push([x, l.base[c], z]);
-            }
-        }
-    }
-    pts
-}
-
 #[test]
 fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_roof() {
     // Small correctness check of the baseline itself (so its timings compare like with like).
@@ -941,19 +873,7 @@ fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_r
 fn upward_ray_casting_baseline() {
     println!("rayon threads: {}", rayon::current_num_threads());
     // The paper's scale: 5,114 triangles, K = 5, 128² maps (same scene as `timings`).
-    let mut b = Builder {
-        mesh: bumpy_scene(50, 51, 1),
-    };
-    b.quad(
-        [
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [1.0, 1.0, 1.0],
-            [0.0, 1.0, 1.0],
-        ],
-        [0.0, 1.0, 0.0],
-    );
-    let mesh = b.build();
+    let mesh = paper_scene();
     assert_eq!(mesh.triangles.len(), 5114);
     let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
     let dirs = snowfall_directions(5, 10.0, None, 1);
