@@ -40,12 +40,10 @@ fn probability(c: &mut Criterion) {
         let mesh = million_scene();
         let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
         let dirs = snowfall_directions(64, 10.0, None, 1);
-        g.sample_size(10)
-            .measurement_time(Duration::from_secs(30));
+        g.sample_size(10).measurement_time(Duration::from_secs(30));
         g.bench_function("1m_k64_1024", |b| {
             b.iter(|| {
-                snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-                    .unwrap()
+                snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl).unwrap()
             })
         });
     }

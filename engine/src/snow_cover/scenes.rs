@@ -36,7 +36,14 @@ impl SceneBuilder {
     }
 
     /// A horizontal grid of `n × m` quads at height `y(x, z)` over [x0, x1] × [z0, z1], facing up.
-    pub fn grid(&mut self, x: [f32; 2], z: [f32; 2], n: usize, m: usize, y: impl Fn(f32, f32) -> f32) {
+    pub fn grid(
+        &mut self,
+        x: [f32; 2],
+        z: [f32; 2],
+        n: usize,
+        m: usize,
+        y: impl Fn(f32, f32) -> f32,
+    ) {
         let base = self.mesh.positions.len() as u32;
         for j in 0..=m {
             for i in 0..=n {
@@ -290,4 +297,3 @@ pub fn map_points(maps: &SnowMaps, stride: usize) -> Vec<[f32; 3]> {
     }
     pts
 }
-

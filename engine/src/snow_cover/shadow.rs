@@ -203,13 +203,7 @@ const LANES: usize = 8;
 /// expressions either way, and a max does not depend on the order of the triangles, so the depths
 /// are the same bits as drawing the triangles one by one.
 #[inline(always)]
-fn raster_batch(
-    depth: &mut [f32],
-    wd: usize,
-    ht: usize,
-    v: &[[[f32; LANES]; 3]; 3],
-    n: usize,
-) {
+fn raster_batch(depth: &mut [f32], wd: usize, ht: usize, v: &[[[f32; LANES]; 3]; 3], n: usize) {
     // Texel range of the bounding box, in integers (grid coordinates lie in [0, MAX_SHADOW_DIM],
     // the vertices being inside the bounds the map was fitted to).
     let (xmax, ymax) = ((wd as f32 - 1.0).max(0.0), (ht as f32 - 1.0).max(0.0));
@@ -237,7 +231,7 @@ fn raster_batch(
         let (a0, b0, c0) = ((by - cy) * ia, (cx - bx) * ia, (bx * cy - by * cx) * ia); // weight of a
         let (a1, b1, c1) = ((cy - ay) * ia, (ax - cx) * ia, (cx * ay - cy * ax) * ia); // weight of b
         let (a2, b2, c2) = ((ay - by) * ia, (bx - ax) * ia, (ax * by - ay * bx) * ia); // weight of c
-        // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
+                                                                                       // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
         let dzx = az * a0 + bz * a1 + cz * a2;
         let dzy = az * b0 + bz * b1 + cz * b2;
         let dzc = az * c0 + bz * c1 + cz * c2;
@@ -267,7 +261,10 @@ fn raster_batch(
                 & (e0 >= EDGE_EPS)
                 & (e1 >= EDGE_EPS)
                 & (e2 >= EDGE_EPS);
-            let (xc, yc) = (if xf < xmax { xf } else { xmax }, if yf < ymax { yf } else { ymax });
+            let (xc, yc) = (
+                if xf < xmax { xf } else { xmax },
+                if yf < ymax { yf } else { ymax },
+            );
             idx[cand][q] = yc * wdf + xc;
         }
     }
