@@ -498,8 +498,10 @@ fn outflow(
         // Split what does not fit evenly over the neighbours with room (first ones get the
         // remainder), each up to its room.
         let open = (0..4).filter(|&d| room[d] > o[d]).count() as u64;
-        if open > 0 {
-            let (each, mut extra) = (u64::from(excess) / open, u64::from(excess) % open);
+        if let (Some(each), Some(mut extra)) = (
+            u64::from(excess).checked_div(open),
+            u64::from(excess).checked_rem(open),
+        ) {
             for d in 0..4 {
                 if room[d] > o[d] {
                     let want = each + u64::from(extra > 0);
