@@ -14,7 +14,9 @@
 //! the remainder stays on the fine cells). A coarse link joins two blocks when both fine links
 //! across that block side lead to the same layer and the neighbouring block carries it; both
 //! fine links lost (the scene's edge) makes it lost; anything else is a wall, so snow never
-//! crosses, at the coarse level, a place the fine map treats differently.
+//! crosses, at the coarse level, a place the fine map treats differently. A block under a ceiling
+//! gets a ceiling that lets it gain no more than the fullest of its cells can take (less
+//! [`CEILING_MARGIN_UNITS`]); a block with less room than that stays fine-only.
 //!
 //! **Prolongation.** A block whose coarse snow went from D to D' adds `D' − D` units to each of its
 //! four cells (keeping the fine relief inside the block); a cell that would go negative gives what
@@ -30,7 +32,7 @@
 //! Cost: two passes over the fine cells and the coarse map's own stabilization. Allocates the
 //! coarse maps and their [`Settler`] once per fine [`Settler`].
 
-use super::maps::{Layer, SnowMaps, LINK_LOST, LINK_WALL};
+use super::maps::{Layer, SnowMaps, LINK_LOST, LINK_WALL, SNOW_UNIT_M};
 use super::settle::{SettleReport, Settler};
 use crate::{Canceled, Control};
 
@@ -39,6 +41,11 @@ use crate::{Canceled, Control};
 /// animation (small increments per step) the coarse pass costs more than it saves (measured on the
 /// 200² animation benchmark: 27 instead of 32 steps/s).
 pub const COARSE_MIN_SIDE: usize = 256;
+
+/// Safety margin (snow units, 0.1 mm) between a coarse block's ceiling and the least room any of
+/// its cells has: covers the `f32` rounding of the coarse base, so a prolonged change never lifts
+/// a fine cell past its own ceiling. Blocks with less room stay fine-only.
+const CEILING_MARGIN_UNITS: u32 = 100;
 
 /// The coarse level of a [`Settler`]: the restricted maps, their own settler, and the coarse snow
 /// before stabilization (per layer).
@@ -128,17 +135,34 @@ impl Coarse {
                             fl.links[c][d] == ku && (fl.base[c] - fl.base[c2]).abs() <= t_drop
                         });
                     let valid = inside && cells.iter().all(|&c| !fl.base[c].is_nan());
+                    // Room under the ceiling: the least any of the four cells has left (units).
+                    let room = cells
+                        .iter()
+                        .map(|&c| fl.capacity(c).saturating_sub(fl.snow[c]))
+                        .min()
+                        .unwrap_or(0);
+                    let valid = valid && room > CEILING_MARGIN_UNITS;
                     if valid {
                         let base = cells.iter().map(|&c| fl.base[c]).sum::<f32>() * 0.25;
                         let s: u64 = cells.iter().map(|&c| u64::from(fl.snow[c])).sum();
                         cl.base[b] = base;
                         cl.snow[b] = (s / 4) as u32;
+                        // A coarse ceiling that lets the block gain at most `room` less a margin
+                        // (f32 rounding of base + snow), so the prolonged change fits every cell.
+                        cl.ceiling[b] = if room == u32::MAX {
+                            f32::INFINITY
+                        } else {
+                            let gain = f64::from(cl.snow[b]) + f64::from(room)
+                                - f64::from(CEILING_MARGIN_UNITS);
+                            let top = f64::from(base) + gain * SNOW_UNIT_M;
+                            top as f32
+                        };
                     } else {
                         cl.base[b] = f32::NAN;
                         cl.snow[b] = 0;
+                        cl.ceiling[b] = f32::INFINITY;
                     }
                     cl.normal[b] = [0.0, 1.0, 0.0];
-                    cl.ceiling[b] = f32::INFINITY;
                 }
             }
             self.before[k].copy_from_slice(&cl.snow);

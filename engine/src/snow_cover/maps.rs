@@ -38,6 +38,22 @@ pub const fn opposite(d: usize) -> usize {
     d ^ 1
 }
 
+/// `⌊(ceiling − base) / unit⌋` in snow units, saturating (see [`Layer::capacity`]).
+#[inline]
+pub fn capacity_units(base: f32, ceiling: f32) -> u32 {
+    if base.is_nan() {
+        return 0;
+    }
+    let room = (f64::from(ceiling) - f64::from(base)) / SNOW_UNIT_M;
+    if room >= f64::from(u32::MAX) {
+        u32::MAX
+    } else if room > 0.0 {
+        room as u32
+    } else {
+        0
+    }
+}
+
 /// One depth layer of the snow maps (see the module doc for the indexing).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Layer {
@@ -47,8 +63,10 @@ pub struct Layer {
     /// Unit normal of that surface (the triangle's), `[0, 0, 0]` where `base` is NaN.
     pub normal: Vec<[f32; 3]>,
     /// Height of the underside of the next geometry above the surface (metres), `+∞` under open
-    /// sky, NaN where `base` is NaN. Informative (outputs may clip snow against it); the model does
-    /// not cap snow at it.
+    /// sky, NaN where `base` is NaN. Snow is clipped at it (our addition; the paper's hand-made
+    /// groups never overlap): a cell holds at most [`Layer::capacity`] units; accumulation does
+    /// not deposit beyond it, and stabilization treats snow that does not fit like snow on a wall:
+    /// it moves on (see [`super::settle`]).
     pub ceiling: Vec<f32>,
     /// Snow probability P in [0, 1] (journal §2.2), 0 where `base` is NaN.
     pub probability: Vec<f32>,
@@ -79,10 +97,24 @@ impl Layer {
         (self.snow[c] as f64 * SNOW_UNIT_M) as f32
     }
 
-    /// Snow surface height (base + depth) at cell `c`, metres; NaN where there is no surface.
+    /// Snow surface height (base + depth, clipped at the ceiling) at cell `c`, metres; NaN where
+    /// there is no surface.
     #[inline]
     pub fn surface(&self, c: usize) -> f32 {
-        self.base[c] + self.depth_m(c)
+        let s = self.base[c] + self.depth_m(c);
+        if s > self.ceiling[c] {
+            self.ceiling[c]
+        } else {
+            s
+        }
+    }
+
+    /// Most snow (units) that fits between the base and the ceiling at cell `c`: `⌊(ceiling −
+    /// base) / unit⌋`, `u32::MAX` under open sky (or a gap of more than 4.29 km), 0 where there is
+    /// no surface.
+    #[inline]
+    pub fn capacity(&self, c: usize) -> u32 {
+        capacity_units(self.base[c], self.ceiling[c])
     }
 
     /// Total snow in this layer, in units.

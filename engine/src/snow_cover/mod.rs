@@ -13,6 +13,8 @@ pub mod params;
 pub mod probability;
 pub mod region;
 pub mod run;
+#[doc(hidden)]
+pub mod scenes;
 pub mod settle;
 pub mod shadow;
 pub mod shape;

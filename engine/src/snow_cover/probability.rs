@@ -29,7 +29,7 @@
 use rayon::prelude::*;
 
 use super::maps::SnowMaps;
-use super::shadow::ShadowMap;
+use super::shadow::{ShadowMap, MAX_BIAS_TAN};
 use crate::geom::mesh::Mesh;
 use crate::{Canceled, Control};
 
@@ -211,8 +211,9 @@ pub fn snow_probability(
         return Ok(());
     }
 
-    // Receiver points (x, y, z) and biases per layer are direction-independent except for the
-    // bias's tan α, which needs the normal; keep the maps read-only in the parallel part.
+    // Receiver points and normals are direction-independent: gather them once (structure of
+    // arrays, so the per-direction test vectorises), with each layer's non-empty span per row.
+    let recv = Receivers::new(maps, receiver);
     let threads = rayon::current_num_threads().max(1);
     let chunk = dirs.len().div_ceil(threads);
     let maps_ref: &SnowMaps = maps;
@@ -222,15 +223,15 @@ pub fn snow_probability(
         .map(|(ds, ws)| {
             let mut sm = ShadowMap::default();
             let mut lit: Vec<Vec<u32>> = vec![vec![0u32; n]; n_layers];
+            let mut row = RowScratch::new(maps_ref.nx);
             for (d, &w) in ds.iter().zip(ws) {
                 ctl.checkpoint()?;
                 if w == 0 {
                     continue;
                 }
                 sm.render(mesh, *d, bounds, maps_ref.cell);
-                for (k, layer) in maps_ref.layers.iter().enumerate() {
-                    lit_cells(maps_ref, k, receiver, &sm, w, &mut lit[k]);
-                    let _ = layer;
+                for (k, l) in lit.iter_mut().enumerate() {
+                    lit_cells(&recv, k, &sm, maps_ref.extent, w, l, &mut row);
                 }
             }
             Ok(lit)
@@ -264,32 +265,146 @@ pub fn snow_probability(
     Ok(())
 }
 
+/// The receiver points of every layer, gathered once per [`snow_probability`] call: cell-centre
+/// x per column and z per row, and per layer the receiver height (base, or base + snow) and the
+/// normal as separate arrays, plus per row the span of cells that have the layer (empty rows and
+/// the empty ends of rows are skipped).
+struct Receivers {
+    nx: usize,
+    xs: Vec<f32>,
+    zs: Vec<f32>,
+    layers: Vec<ReceiverLayer>,
+}
+
+struct ReceiverLayer {
+    ys: Vec<f32>,
+    nx: Vec<f32>,
+    ny: Vec<f32>,
+    nz: Vec<f32>,
+    /// Per row, `[first, end)` of the cells with a surface (`first == end`: none).
+    spans: Vec<(usize, usize)>,
+}
+
+impl Receivers {
+    fn new(maps: &SnowMaps, receiver: Receiver) -> Self {
+        let xs = (0..maps.nx).map(|i| maps.centre(i, 0)[0]).collect();
+        let zs = (0..maps.nz).map(|j| maps.centre(0, j)[1]).collect();
+        let layers = maps
+            .layers
+            .iter()
+            .map(|layer| {
+                let ys = (0..maps.len())
+                    .map(|c| match receiver {
+                        Receiver::Base => layer.base[c],
+                        Receiver::SnowSurface => layer.base[c] + layer.depth_m(c),
+                    })
+                    .collect();
+                let spans = layer
+                    .base
+                    .chunks(maps.nx.max(1))
+                    .map(|r| {
+                        let first = r.iter().position(|b| !b.is_nan()).unwrap_or(r.len());
+                        let end = r.iter().rposition(|b| !b.is_nan()).map_or(first, |e| e + 1);
+                        (first, end)
+                    })
+                    .collect();
+                ReceiverLayer {
+                    ys,
+                    nx: layer.normal.iter().map(|n| n[0]).collect(),
+                    ny: layer.normal.iter().map(|n| n[1]).collect(),
+                    nz: layer.normal.iter().map(|n| n[2]).collect(),
+                    spans,
+                }
+            })
+            .collect();
+        Self {
+            nx: maps.nx,
+            xs,
+            zs,
+            layers,
+        }
+    }
+}
+
+/// Per-row scratch of [`lit_cells`]: the shadow-map texel of each cell (−1: off the map) and the
+/// depth it must exceed to shadow the cell.
+struct RowScratch {
+    idx: Vec<i32>,
+    thr: Vec<f32>,
+}
+
+impl RowScratch {
+    fn new(nx: usize) -> Self {
+        Self {
+            idx: vec![-1; nx],
+            thr: vec![0.0; nx],
+        }
+    }
+}
+
 /// Add `w` to `lit[c]` for every cell of layer `k` that is lit in `sm`.
+///
+/// The same test as [`ShadowMap::bias`] and [`ShadowMap::occluded`], expression for expression
+/// (so the same bits), split in two passes per row: a branch-free pass computing each cell's texel
+/// and threshold (vectorised by the compiler: the square root and division of the bias four cells
+/// at a time), then the lookups. Cells without a surface inside a row's span get a meaningless
+/// count; [`snow_probability`] sets their P to 0.
 fn lit_cells(
-    maps: &SnowMaps,
+    recv: &Receivers,
     k: usize,
-    receiver: Receiver,
     sm: &ShadowMap,
+    extent: f32,
     w: u32,
     lit: &mut [u32],
+    row: &mut RowScratch,
 ) {
-    let layer = &maps.layers[k];
-    for j in 0..maps.nz {
-        for i in 0..maps.nx {
-            let c = j * maps.nx + i;
-            let b = layer.base[c];
-            if b.is_nan() {
-                continue;
-            }
-            let y = match receiver {
-                Receiver::Base => b,
-                Receiver::SnowSurface => b + layer.depth_m(c),
+    let layer = &recv.layers[k];
+    let nx = recv.nx;
+    let inv = 1.0 / sm.texel;
+    let (u, t, wv) = (sm.u, sm.t, sm.w);
+    let (u0, t0) = (sm.u0, sm.t0);
+    let (wf, hf) = (sm.width as f32, sm.height as f32);
+    let width = sm.width as i32;
+    let texel = sm.texel;
+    let eps = 1e-5 * extent;
+    for (j, &(first, end)) in layer.spans.iter().enumerate() {
+        if first >= end {
+            continue;
+        }
+        let z = recv.zs[j];
+        let (a, b) = (j * nx + first, j * nx + end);
+        let len = end - first;
+        let (idx, thr) = (&mut row.idx[..len], &mut row.thr[..len]);
+        let xs = &recv.xs[first..end];
+        let ys = &layer.ys[a..b];
+        let (nxs, nys, nzs) = (&layer.nx[a..b], &layer.ny[a..b], &layer.nz[a..b]);
+        for q in 0..len {
+            let (x, y) = (xs[q], ys[q]);
+            // ShadowMap::bias.
+            let c = (nxs[q] * wv[0] + nys[q] * wv[1] + nzs[q] * wv[2])
+                .abs()
+                .max(1e-3);
+            let tan = ((1.0 - c * c).max(0.0).sqrt() / c).min(MAX_BIAS_TAN);
+            let bias = texel * (0.71 * tan + 0.1) + eps;
+            // ShadowMap::occluded.
+            let gx = ((x * u[0] + y * u[1] + z * u[2]) - u0) * inv - 0.5;
+            let gy = ((x * t[0] + y * t[1] + z * t[2]) - t0) * inv - 0.5;
+            let (px, py) = (gx + 0.5, gy + 0.5);
+            let on = (gx >= -0.5) & (gy >= -0.5) & (px < wf) & (py < hf);
+            idx[q] = if on {
+                py as i32 * width + px as i32
+            } else {
+                -1
             };
-            let [x, z] = maps.centre(i, j);
-            let bias = sm.bias(layer.normal[c], maps.extent);
-            if !sm.occluded([x, y, z], bias) {
-                lit[c] += w;
-            }
+            thr[q] = (x * wv[0] + y * wv[1] + z * wv[2]) + bias;
+        }
+        for ((l, &i), &th) in lit[a..b].iter_mut().zip(idx.iter()).zip(thr.iter()) {
+            let d = sm
+                .depth
+                .get(i as usize)
+                .copied()
+                .unwrap_or(f32::NEG_INFINITY);
+            *l += if d > th { 0 } else { w };
         }
     }
 }

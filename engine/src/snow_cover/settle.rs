@@ -21,6 +21,15 @@
 //! highest lower region at that spot and keeps stabilizing there (Fig. 7: snow under a table
 //! arrives by falling off its edge and spreading from the pile below).
 //!
+//! **Ceiling** (our addition: the paper's groups never overlap). A cell holds at most
+//! [`Layer::capacity`](super::maps::Layer::capacity) units, the snow that fits under the geometry
+//! above it (the floor under a table). A neighbour already full to its ceiling takes nothing (a wall
+//! for now); shares are capped at the room a neighbour has left; the drop is measured from the snow
+//! *surface*, clipped at the ceiling; and snow above a cell's ceiling (none arises from accumulation
+//! or movement, but a caller may set it) is split over the neighbours with room, like snow on a wall:
+//! it moves on. In a Jacobi iteration several cells may fill one neighbour at once; the serial scatter
+//! gives it what fits, in its fixed order, and the rest stays with the giver.
+//!
 //! **Edges.** A [`LINK_LOST`] neighbour acts as a bare surface at the cell's own base that never
 //! fills: snow deeper than `T` spills over the edge of the scene and is reported as lost.
 //! [`LINK_WALL`] neighbours take nothing.
@@ -262,15 +271,15 @@ impl Settler {
 
         // Scatter: every moving cell loses its outflows, its linked neighbours gain them.
         self.changed.iter_mut().for_each(|v| *v = false);
+        let mut rejected = 0u64;
         for band in &self.bands {
             for &idx in &band.0 {
                 let idx = idx as usize;
                 let (c, k) = (idx / nl, idx % nl);
                 let (i, j) = (c % nx, c / nx);
                 let o = self.out[idx];
-                let layer = &mut maps.layers[k];
-                layer.snow[c] -= o[0] + o[1] + o[2] + o[3];
-                let links = layer.links[c];
+                let links = maps.layers[k].links[c];
+                maps.layers[k].snow[c] -= o[0] + o[1] + o[2] + o[3];
                 self.changed[(j / TILE) * tx + i / TILE] = true;
                 mark(&mut self.dirty_next, nx, self.nz, i, j);
                 for d in 0..4 {
@@ -279,14 +288,21 @@ impl Settler {
                     }
                     let (di, dj) = NEIGHBOURS[d];
                     let (i2, j2) = ((i as isize + di) as usize, (j as isize + dj) as usize);
-                    maps.layers[usize::from(links[d])].snow[j2 * nx + i2] += o[d];
+                    let l2 = &mut maps.layers[usize::from(links[d])];
+                    let c2 = j2 * nx + i2;
+                    // Several cells may fill the same neighbour in one Jacobi iteration: what no
+                    // longer fits under its ceiling stays with the giver (fixed scatter order).
+                    let take = o[d].min(l2.capacity(c2).saturating_sub(l2.snow[c2]));
+                    l2.snow[c2] += take;
+                    maps.layers[k].snow[c] += o[d] - take;
+                    rejected += u64::from(o[d] - take);
                     self.changed[(j2 / TILE) * tx + i2 / TILE] = true;
                     mark(&mut self.dirty_next, nx, self.nz, i2, j2);
                 }
             }
         }
         self.next_active();
-        (moved, lost)
+        (moved - rejected, lost)
     }
 
     /// Next active set: the changed tiles dilated by one tile; the next dirty cells.
@@ -365,8 +381,13 @@ impl Settler {
                             }
                             let (di, dj) = NEIGHBOURS[d];
                             let (i2, j2) = ((i as isize + di) as usize, (j as isize + dj) as usize);
-                            let s2 = &mut maps.layers[usize::from(links[d])].snow[j2 * nx + i2];
-                            *s2 += o[d];
+                            let l2 = &mut maps.layers[usize::from(links[d])];
+                            let c2 = j2 * nx + i2;
+                            // The rounding remainder of a scaled-down outflow may not fit.
+                            let take = o[d].min(l2.capacity(c2).saturating_sub(l2.snow[c2]));
+                            l2.snow[c2] += take;
+                            maps.layers[k].snow[c] += o[d] - take;
+                            *moved -= u64::from(o[d] - take);
                             self.changed[(j2 / TILE) * tx + i2 / TILE] = true;
                             mark(&mut self.dirty_next, nx, nz, i2, j2);
                         }
@@ -419,18 +440,33 @@ fn outflow(
     let unit = SNOW_UNIT_M as f32;
     let b = layer.base[c];
     let links = layer.links[c];
+    // Snow above the ceiling is not part of the surface; it must move on (module doc, "Ceiling").
+    let cap = layer.capacity(c);
+    let kept = s.min(cap);
+    let excess = s - kept;
     let mut e = [0f32; 4];
+    // Room left in the neighbour each way (`u32::MAX`: over the scene's edge).
+    let mut room = [0u32; 4];
     let mut n = 0u32;
     let mut sum = 0f32;
     for d in 0..4 {
         let drop = match links[d] {
             LINK_WALL => continue,
-            LINK_LOST => s as f32 * unit,
+            LINK_LOST => {
+                room[d] = u32::MAX;
+                kept as f32 * unit
+            }
             k2 => {
                 let (di, dj) = NEIGHBOURS[d];
                 let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
                 let l2 = &maps.layers[usize::from(k2)];
-                (b - l2.base[c2]) + (i64::from(s) - i64::from(l2.snow[c2])) as f32 * unit
+                let (s2, cap2) = (l2.snow[c2], l2.capacity(c2));
+                room[d] = cap2.saturating_sub(s2);
+                if room[d] == 0 {
+                    // Full up to its ceiling: a wall for now.
+                    continue;
+                }
+                (b - l2.base[c2]) + (i64::from(kept) - i64::from(s2.min(cap2))) as f32 * unit
             }
         };
         let ex = drop - t_drop;
@@ -440,24 +476,45 @@ fn outflow(
             sum += ex;
         }
     }
-    if n == 0 {
-        return ([0; 4], 0);
-    }
-    let share = omega * sum / (n * (n + 1)) as f32;
     let mut o = [0u32; 4];
     let mut total = 0u64;
-    for d in 0..4 {
-        if e[d] > 0.0 {
-            // At least one unit, so a drop past the tolerance always moves something.
-            let a = (share.min(0.5 * omega * e[d]) / unit).max(1.0);
-            let a = if a >= u32::MAX as f32 {
-                u32::MAX
-            } else {
-                a as u32
-            };
-            o[d] = a;
-            total += u64::from(a);
+    if n > 0 {
+        let share = omega * sum / (n * (n + 1)) as f32;
+        for d in 0..4 {
+            if e[d] > 0.0 {
+                // At least one unit, so a drop past the tolerance always moves something.
+                let a = (share.min(0.5 * omega * e[d]) / unit).max(1.0);
+                let a = if a >= u32::MAX as f32 {
+                    u32::MAX
+                } else {
+                    a as u32
+                };
+                o[d] = a.min(room[d]);
+                total += u64::from(o[d]);
+            }
         }
+    }
+    if excess > 0 {
+        // Split what does not fit evenly over the neighbours with room (first ones get the
+        // remainder), each up to its room.
+        let open = (0..4).filter(|&d| room[d] > o[d]).count() as u64;
+        if let (Some(each), Some(mut extra)) = (
+            u64::from(excess).checked_div(open),
+            u64::from(excess).checked_rem(open),
+        ) {
+            for d in 0..4 {
+                if room[d] > o[d] {
+                    let want = each + u64::from(extra > 0);
+                    extra = extra.saturating_sub(1);
+                    let add = want.min(u64::from(room[d] - o[d]));
+                    o[d] += add as u32;
+                    total += add;
+                }
+            }
+        }
+    }
+    if total == 0 {
+        return ([0; 4], 0);
     }
     if total > u64::from(s) {
         // Scale down to what the cell has, in integers; the remainder of the rounding goes to the

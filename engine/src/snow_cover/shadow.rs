@@ -27,7 +27,7 @@ use crate::geom::mesh::Mesh;
 /// Largest shadow-map side, texels.
 pub const MAX_SHADOW_DIM: usize = 4096;
 /// Cap on `tan α` in the slope-scaled bias.
-const MAX_BIAS_TAN: f32 = 8.0;
+pub const MAX_BIAS_TAN: f32 = 8.0;
 
 /// A depth-only orthographic shadow map (see the module doc).
 #[derive(Debug, Clone, Default)]
@@ -47,28 +47,6 @@ pub struct ShadowMap {
     pub depth: Vec<f32>,
     /// Scratch: per-vertex (grid x, grid y, depth).
     proj: Vec<[f32; 3]>,
-}
-
-/// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
-/// |x| < 2³¹.
-#[inline]
-fn ffloor(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t > x {
-        t - 1.0
-    } else {
-        t
-    }
-}
-
-#[inline]
-fn fceil(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t < x {
-        t + 1.0
-    } else {
-        t
-    }
 }
 
 #[inline]
@@ -142,63 +120,19 @@ impl ShadowMap {
                 .map(|&p| [dot(p, su) - gu0, dot(p, st) - gt0, dot(p, w)]),
         );
         let (wd, ht) = (self.width, self.height);
-        let (xmax_f, ymax_f) = (wd as f32 - 1.0, ht as f32 - 1.0);
         let proj = &self.proj;
         let depth = &mut self.depth;
-        for tri in &mesh.triangles {
-            let a = proj[tri[0] as usize];
-            let b = proj[tri[1] as usize];
-            let c = proj[tri[2] as usize];
-            let x0 = fceil(a[0].min(b[0]).min(c[0])).max(0.0);
-            let x1 = ffloor(a[0].max(b[0]).max(c[0])).min(xmax_f);
-            if x0 > x1 {
-                continue;
-            }
-            let y0 = fceil(a[1].min(b[1]).min(c[1])).max(0.0);
-            let y1 = ffloor(a[1].max(b[1]).max(c[1])).min(ymax_f);
-            if y0 > y1 {
-                continue;
-            }
-            let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
-            if area.abs() < 1e-12 {
-                continue;
-            }
-            let ia = 1.0 / area;
-            // Normalised edge functions e_k(x, y) = A_k x + B_k y + C_k, ≥ 0 inside.
-            let e = |p: [f32; 3], q: [f32; 3]| {
-                let aa = (p[1] - q[1]) * ia;
-                let bb = (q[0] - p[0]) * ia;
-                let cc = (p[0] * q[1] - p[1] * q[0]) * ia;
-                (aa, bb, cc)
-            };
-            let (a0, b0, c0) = e(b, c); // weight of a
-            let (a1, b1, c1) = e(c, a); // weight of b
-            let (a2, b2, c2) = e(a, b); // weight of c
-                                        // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
-            let dzx = a[2] * a0 + b[2] * a1 + c[2] * a2;
-            let dzy = a[2] * b0 + b[2] * b1 + c[2] * b2;
-            let dzc = a[2] * c0 + b[2] * c1 + c[2] * c2;
-            const E: f32 = -1e-5;
-            for y in y0 as usize..=y1 as usize {
-                let yf = y as f32;
-                let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
-                let rz = dzy * yf + dzc;
-                let row = &mut depth[y * wd..(y + 1) * wd];
-                for (x, d) in row
-                    .iter_mut()
-                    .enumerate()
-                    .take(x1 as usize + 1)
-                    .skip(x0 as usize)
-                {
-                    let xf = x as f32;
-                    if a0 * xf + r0 >= E && a1 * xf + r1 >= E && a2 * xf + r2 >= E {
-                        let z = dzx * xf + rz;
-                        if z > *d {
-                            *d = z;
-                        }
-                    }
+        for tris in mesh.triangles.chunks(LANES) {
+            let mut v = [[[0f32; LANES]; 3]; 3];
+            for (q, tri) in tris.iter().enumerate() {
+                for (k, &i) in tri.iter().enumerate() {
+                    let p = proj[i as usize];
+                    v[k][0][q] = p[0];
+                    v[k][1][q] = p[1];
+                    v[k][2][q] = p[2];
                 }
             }
+            raster_batch(depth, wd, ht, &v, tris.len());
         }
     }
 
@@ -227,5 +161,176 @@ impl ShadowMap {
             return false;
         }
         self.depth[y as usize * self.width + x as usize] > dot(p, self.w) + bias
+    }
+}
+
+#[inline(always)]
+fn min3(a: f32, b: f32, c: f32) -> f32 {
+    let m = if b < a { b } else { a };
+    if c < m {
+        c
+    } else {
+        m
+    }
+}
+
+#[inline(always)]
+fn max3(a: f32, b: f32, c: f32) -> f32 {
+    let m = if b > a { b } else { a };
+    if c > m {
+        c
+    } else {
+        m
+    }
+}
+
+/// Tolerance of the inclusive edge tests (normalised barycentric units).
+const EDGE_EPS: f32 = -1e-5;
+
+/// Triangles set up together in [`raster_batch`].
+const LANES: usize = 8;
+
+/// Draw up to [`LANES`] projected triangles (`v[corner][axis][lane]`: grid x, grid y, depth;
+/// texel centres at integers; the first `n` lanes used) into the `wd × ht` max-depth buffer
+/// `depth` (module doc).
+///
+/// Most triangles of a fine mesh cover a texel or two (1 M triangles on a 1024² map: about one
+/// texel each), so their cost is the setup and the branches, not the texels. The setup (bounding
+/// box, edge functions, depth plane) and the tests of each triangle's 2 × 2 candidate texel
+/// centres run lane-wise over the batch without branches, which the compiler turns into SIMD;
+/// then the candidates inside their triangle and box are written, one lane at a time. A triangle
+/// whose box holds more than 2 × 2 centres takes the texel loop instead. Every texel sees the same
+/// expressions either way, and a max does not depend on the order of the triangles, so the depths
+/// are the same bits as drawing the triangles one by one.
+#[inline(always)]
+fn raster_batch(depth: &mut [f32], wd: usize, ht: usize, v: &[[[f32; LANES]; 3]; 3], n: usize) {
+    // Texel range of the bounding box, in integers (grid coordinates lie in [0, MAX_SHADOW_DIM],
+    // the vertices being inside the bounds the map was fitted to).
+    let (xmax, ymax) = ((wd as f32 - 1.0).max(0.0), (ht as f32 - 1.0).max(0.0));
+    let wdf = wd as f32;
+    let [a, b, c] = v;
+    let mut x0 = [0f32; LANES];
+    let mut x1 = [0f32; LANES];
+    let mut y0 = [0f32; LANES];
+    let mut y1 = [0f32; LANES];
+    let mut ok = [false; LANES];
+    // Edge-function and depth-plane coefficients per lane.
+    let mut k = [[0f32; LANES]; 12];
+    for q in 0..LANES {
+        let (ax, ay, az) = (a[0][q], a[1][q], a[2][q]);
+        let (bx, by, bz) = (b[0][q], b[1][q], b[2][q]);
+        let (cx, cy, cz) = (c[0][q], c[1][q], c[2][q]);
+        x0[q] = ceil_small(min3(ax, bx, cx)).max(0.0);
+        x1[q] = floor_small(max3(ax, bx, cx)).min(xmax);
+        y0[q] = ceil_small(min3(ay, by, cy)).max(0.0);
+        y1[q] = floor_small(max3(ay, by, cy)).min(ymax);
+        let area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax);
+        ok[q] = area.abs() >= 1e-12;
+        let ia = 1.0 / area;
+        // Normalised edge functions e_k(x, y) = A_k x + B_k y + C_k, ≥ 0 inside.
+        let (a0, b0, c0) = ((by - cy) * ia, (cx - bx) * ia, (bx * cy - by * cx) * ia); // weight of a
+        let (a1, b1, c1) = ((cy - ay) * ia, (ax - cx) * ia, (cx * ay - cy * ax) * ia); // weight of b
+        let (a2, b2, c2) = ((ay - by) * ia, (bx - ax) * ia, (ax * by - ay * bx) * ia); // weight of c
+                                                                                       // Depth plane: z = a.z w0 + b.z w1 + c.z w2.
+        let dzx = az * a0 + bz * a1 + cz * a2;
+        let dzy = az * b0 + bz * b1 + cz * b2;
+        let dzc = az * c0 + bz * c1 + cz * c2;
+        for (kk, val) in k
+            .iter_mut()
+            .zip([a0, b0, c0, a1, b1, c1, a2, b2, c2, dzx, dzy, dzc])
+        {
+            kk[q] = val;
+        }
+    }
+    // The 2 × 2 candidate centres (x0 + dx, y0 + dy) of every lane; texel indices as floats
+    // (exact: below 4096² = 2²⁴).
+    let mut z = [[0f32; LANES]; 4];
+    let mut inside = [[false; LANES]; 4];
+    let mut idx = [[0f32; LANES]; 4];
+    for cand in 0..4 {
+        let (dx, dy) = ((cand & 1) as f32, (cand >> 1) as f32);
+        for q in 0..LANES {
+            let (xf, yf) = (x0[q] + dx, y0[q] + dy);
+            let e0 = k[0][q] * xf + (k[1][q] * yf + k[2][q]);
+            let e1 = k[3][q] * xf + (k[4][q] * yf + k[5][q]);
+            let e2 = k[6][q] * xf + (k[7][q] * yf + k[8][q]);
+            z[cand][q] = k[9][q] * xf + (k[10][q] * yf + k[11][q]);
+            inside[cand][q] = ok[q]
+                & (xf <= x1[q])
+                & (yf <= y1[q])
+                & (e0 >= EDGE_EPS)
+                & (e1 >= EDGE_EPS)
+                & (e2 >= EDGE_EPS);
+            let (xc, yc) = (
+                if xf < xmax { xf } else { xmax },
+                if yf < ymax { yf } else { ymax },
+            );
+            idx[cand][q] = yc * wdf + xc;
+        }
+    }
+    for q in 0..n {
+        if x1[q] <= x0[q] + 1.0 && y1[q] <= y0[q] + 1.0 {
+            for cand in 0..4 {
+                if let Some(d) = depth.get_mut(idx[cand][q] as usize) {
+                    let zq = z[cand][q];
+                    *d = if inside[cand][q] & (zq > *d) { zq } else { *d };
+                }
+            }
+            continue;
+        }
+        if x0[q] > x1[q] || y0[q] > y1[q] || !ok[q] {
+            continue;
+        }
+        let (xa, xb) = (x0[q] as usize, x1[q] as usize);
+        let kq: [f32; 12] = std::array::from_fn(|i| k[i][q]);
+        let [a0, b0, c0, a1, b1, c1, a2, b2, c2, dzx, dzy, dzc] = kq;
+        for y in y0[q] as usize..=y1[q] as usize {
+            let yf = y as f32;
+            let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
+            let rz = dzy * yf + dzc;
+            let Some(row) = depth.get_mut(y * wd + xa..=y * wd + xb) else {
+                break;
+            };
+            for (kx, d) in row.iter_mut().enumerate() {
+                let xf = (xa + kx) as f32;
+                if a0 * xf + r0 >= EDGE_EPS && a1 * xf + r1 >= EDGE_EPS && a2 * xf + r2 >= EDGE_EPS
+                {
+                    let z = dzx * xf + rz;
+                    if z > *d {
+                        *d = z;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Round to nearest (ties to even) without a libm call or an integer conversion (so it
+/// vectorises on plain x86-64): exact for |x| < 2²².
+#[inline(always)]
+fn round_small(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5 · 2²³
+    (x + MAGIC) - MAGIC
+}
+
+/// `⌈x⌉` for |x| < 2²² (grid coordinates are within [−1, 4097]).
+#[inline(always)]
+fn ceil_small(x: f32) -> f32 {
+    let r = round_small(x);
+    if r < x {
+        r + 1.0
+    } else {
+        r
+    }
+}
+
+/// `⌊x⌋` for |x| < 2²².
+#[inline(always)]
+fn floor_small(x: f32) -> f32 {
+    let r = round_small(x);
+    if r > x {
+        r - 1.0
+    } else {
+        r
     }
 }

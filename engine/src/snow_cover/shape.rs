@@ -24,8 +24,9 @@
 //! does), so rims are rounded in shading. Y up, world metres.
 //!
 //! Snow thinner than `min_depth_m` (default [`DEFAULT_MIN_DEPTH_M`], 1 mm) is left out: that is the
-//! sparse-snow regime ([`super::sparse`]). The ceiling ([`super::maps::Layer::ceiling`]) is not
-//! applied: the mesh shows the model's snow, even where it would reach a table's underside.
+//! sparse-snow regime ([`super::sparse`]). The top is clipped at the ceiling
+//! ([`super::maps::Layer::surface`]): the model keeps snow under it already
+//! ([`super::settle`], "Ceiling"), and the clip holds for maps a caller filled by hand.
 //!
 //! **Displaced mesh** ([`displace`]): workshop §2.3 (polygon variant): the input mesh, optionally
 //! subdivided by edge midpoints until no edge is longer than `max_edge_length` (at most
@@ -550,7 +551,10 @@ pub fn displace(mesh: &Mesh, maps: &SnowMaps, max_edge_length: Option<f32>) -> D
             if !u {
                 return 0.0;
             }
-            layer_at(maps, p).map_or(0.0, |(cell, k)| maps.layers[k].depth_m(cell))
+            layer_at(maps, p).map_or(0.0, |(cell, k)| {
+                let l = &maps.layers[k];
+                (l.surface(cell) - l.base[cell]).max(0.0)
+            })
         })
         .collect();
     for (p, d) in positions.iter_mut().zip(&depth) {

@@ -19,7 +19,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::maps::{SnowMaps, SNOW_UNIT_M};
+use super::maps::{capacity_units, SnowMaps, SNOW_UNIT_M};
 use super::probability::{angle_weights, snow_probability, snowfall_directions, Receiver, Wind};
 use super::region::build_snow_maps;
 use super::settle::Settler;
@@ -128,7 +128,9 @@ pub struct ModelReport {
 }
 
 /// Deposit `P · (after_m − before_m)` on every cell (module doc for the rounding), `before_m` and
-/// `after_m` being cumulative snowfall on open ground (metres). Returns the units deposited.
+/// `after_m` being cumulative snowfall on open ground (metres), but no more than fits under the
+/// cell's ceiling ([`super::maps::Layer::capacity`]; what does not fit is not deposited, as snow
+/// on a wall is not, so it is not counted as fallen either). Returns the units deposited.
 pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u64 {
     let (a, b) = (before_m / SNOW_UNIT_M, after_m / SNOW_UNIT_M);
     let mut total = 0u64;
@@ -137,10 +139,13 @@ pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u
             .snow
             .par_iter_mut()
             .zip(layer.probability.par_iter())
-            .map(|(s, &p)| {
+            .zip(layer.base.par_iter().zip(layer.ceiling.par_iter()))
+            .map(|((s, &p), (&base, &ceiling))| {
                 let p = f64::from(p);
                 let d = ((p * b).round() - (p * a).round()).max(0.0) as u64;
-                let d = d.min(u64::from(u32::MAX - *s));
+                // Not past the ceiling: snow that does not fit lands on what is above instead.
+                let cap = capacity_units(base, ceiling);
+                let d = d.min(u64::from(cap.saturating_sub(*s)));
                 *s += d as u32;
                 d
             })

@@ -3,7 +3,7 @@
 //! stabilization, the mass balance, determinism across runs and rayon thread counts, and (ignored)
 //! timings at the issue's sizes.
 
-use phenomena_engine::geom::mesh::{Mesh, MeshPart};
+use phenomena_engine::geom::mesh::Mesh;
 use phenomena_engine::snow_cover::maps::{LINK_LOST, LINK_WALL, NEIGHBOURS};
 use phenomena_engine::snow_cover::probability::{angle_weights, main_direction};
 use phenomena_engine::snow_cover::{
@@ -16,134 +16,10 @@ use std::time::Instant;
 // ---------------------------------------------------------------------------------------------
 // Scene builders
 
-#[derive(Default)]
-struct Builder {
-    mesh: Mesh,
-}
-
-impl Builder {
-    /// A quad with corners in order around it; flipped if needed so its normal points along `out`.
-    fn quad(&mut self, q: [[f32; 3]; 4], out: [f32; 3]) {
-        let base = self.mesh.positions.len() as u32;
-        self.mesh.positions.extend_from_slice(&q);
-        let u = sub(q[1], q[0]);
-        let v = sub(q[2], q[0]);
-        let n = cross(u, v);
-        let (a, b, c, d) = (base, base + 1, base + 2, base + 3);
-        if dot(n, out) >= 0.0 {
-            self.mesh.triangles.push([a, b, c]);
-            self.mesh.triangles.push([a, c, d]);
-        } else {
-            self.mesh.triangles.push([a, c, b]);
-            self.mesh.triangles.push([a, d, c]);
-        }
-    }
-
-    /// A horizontal grid of `n × m` quads at height `y(x, z)` over [x0, x1] × [z0, z1], facing up.
-    fn grid(&mut self, x: [f32; 2], z: [f32; 2], n: usize, m: usize, y: impl Fn(f32, f32) -> f32) {
-        let base = self.mesh.positions.len() as u32;
-        for j in 0..=m {
-            for i in 0..=n {
-                let px = x[0] + (x[1] - x[0]) * i as f32 / n as f32;
-                let pz = z[0] + (z[1] - z[0]) * j as f32 / m as f32;
-                self.mesh.positions.push([px, y(px, pz), pz]);
-            }
-        }
-        let row = (n + 1) as u32;
-        for j in 0..m as u32 {
-            for i in 0..n as u32 {
-                let a = base + j * row + i;
-                // (a, a+row, a+1) has normal +Y (z grows with j, x with i).
-                self.mesh.triangles.push([a, a + row, a + 1]);
-                self.mesh.triangles.push([a + 1, a + row, a + row + 1]);
-            }
-        }
-    }
-
-    /// A closed axis-aligned box with outward normals (12 triangles).
-    fn cuboid(&mut self, lo: [f32; 3], hi: [f32; 3]) {
-        let p = |x: usize, y: usize, z: usize| {
-            [
-                if x == 0 { lo[0] } else { hi[0] },
-                if y == 0 { lo[1] } else { hi[1] },
-                if z == 0 { lo[2] } else { hi[2] },
-            ]
-        };
-        self.quad(
-            [p(0, 1, 0), p(1, 1, 0), p(1, 1, 1), p(0, 1, 1)],
-            [0.0, 1.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(1, 0, 0), p(1, 0, 1), p(0, 0, 1)],
-            [0.0, -1.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(0, 1, 0), p(0, 1, 1), p(0, 0, 1)],
-            [-1.0, 0.0, 0.0],
-        );
-        self.quad(
-            [p(1, 0, 0), p(1, 1, 0), p(1, 1, 1), p(1, 0, 1)],
-            [1.0, 0.0, 0.0],
-        );
-        self.quad(
-            [p(0, 0, 0), p(1, 0, 0), p(1, 1, 0), p(0, 1, 0)],
-            [0.0, 0.0, -1.0],
-        );
-        self.quad(
-            [p(0, 0, 1), p(1, 0, 1), p(1, 1, 1), p(0, 1, 1)],
-            [0.0, 0.0, 1.0],
-        );
-    }
-
-    fn floor(&mut self, size: f32) {
-        self.quad(
-            [
-                [0.0, 0.0, 0.0],
-                [size, 0.0, 0.0],
-                [size, 0.0, size],
-                [0.0, 0.0, size],
-            ],
-            [0.0, 1.0, 0.0],
-        );
-    }
-
-    /// A table: top slab [x0, x1] × [z0, z1] from `h − 0.05` to `h`, four 0.1 m legs.
-    fn table(&mut self, x: [f32; 2], z: [f32; 2], h: f32) {
-        self.cuboid([x[0], h - 0.05, z[0]], [x[1], h, z[1]]);
-        for (lx, lz) in [
-            (x[0], z[0]),
-            (x[1] - 0.1, z[0]),
-            (x[0], z[1] - 0.1),
-            (x[1] - 0.1, z[1] - 0.1),
-        ] {
-            self.cuboid([lx, 0.0, lz], [lx + 0.1, h - 0.05, lz + 0.1]);
-        }
-    }
-
-    fn build(mut self) -> Mesh {
-        self.mesh.parts = vec![MeshPart {
-            name: "scene".into(),
-            first_triangle: 0,
-            triangle_count: self.mesh.triangles.len(),
-            base_color: [0.8, 0.8, 0.8, 1.0],
-        }];
-        self.mesh
-    }
-}
-
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use phenomena_engine::snow_cover::scenes::{
+    animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
+    upward_ray_casting, SceneBuilder as Builder,
+};
 
 /// Floor 10 × 10 m at y = 0 and a closed box roof [3, 7]² from y = 2 to 2.2 (floating).
 fn roof_scene() -> Mesh {
@@ -402,7 +278,13 @@ fn worst_slope_excess(maps: &SnowMaps, repose_deg: f32) -> f32 {
                         k2 => {
                             let c2 =
                                 (j as isize + dj) as usize * maps.nx + (i as isize + di) as usize;
-                            maps.layers[k2 as usize].surface(c2)
+                            let l2 = &maps.layers[k2 as usize];
+                            if l2.snow[c2] >= l2.capacity(c2) {
+                                // Full to its ceiling (the floor inside a table's leg has none):
+                                // a wall, as in the model (settle.rs, "Ceiling").
+                                continue;
+                            }
+                            l2.surface(c2)
                         }
                     };
                     let slope = (l.surface(c) - h2) / maps.cell;
@@ -699,19 +581,6 @@ fn cancellation_stops_the_run() {
 // `cargo test --release -p phenomena-engine --test it snow_cover::timings -- --ignored --nocapture`)
 
 /// A bumpy grid of `n × m` quads over 10 × 10 m plus `boxes` boxes.
-fn bumpy_scene(n: usize, m: usize, boxes: usize) -> Mesh {
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], n, m, |x, z| {
-        0.2 * (x * 1.3).sin() * (z * 0.9).cos()
-    });
-    for k in 0..boxes {
-        let x = 1.0 + (k % 4) as f32 * 2.2;
-        let z = 1.0 + (k / 4 % 4) as f32 * 2.2;
-        b.cuboid([x, 0.5, z], [x + 1.2, 0.8 + 0.1 * k as f32, z + 0.9]);
-    }
-    b.build()
-}
-
 fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut best = f64::MAX;
     let mut out = None;
@@ -730,19 +599,7 @@ fn timings() {
     println!("rayon threads: {}", rayon::current_num_threads());
 
     // Paper scale: 5,114 triangles, K = 5, 128² maps.
-    let mut b = Builder {
-        mesh: bumpy_scene(50, 51, 1),
-    };
-    b.quad(
-        [
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [1.0, 1.0, 1.0],
-            [0.0, 1.0, 1.0],
-        ],
-        [0.0, 1.0, 0.0],
-    );
-    let mesh = b.build();
+    let mesh = paper_scene();
     assert_eq!(mesh.triangles.len(), 5114);
     let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
     let dirs = snowfall_directions(5, 10.0, None, 1);
@@ -755,7 +612,7 @@ fn timings() {
     );
 
     // 1M triangles, K = 64, 1024².
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let (t, mut maps) = best_of(1, || build_snow_maps(&mesh, 1024, &NoControl).unwrap());
     println!(
         "regions {} tris, 1024² ({} layers): {t:.0} ms",
@@ -773,30 +630,16 @@ fn timings() {
 
     // A 1 m pile on a 1024² map stabilized to convergence: 1 m of snow on a 1 m disc in the middle
     // of a 10.24 m plane (cell 1 cm), and 1 m everywhere on a table scene.
-    let mut b = Builder::default();
-    b.floor(10.24);
-    let plane = b.build();
+    let plane = pile_plane();
     let mut maps = build_snow_maps(&plane, 1024, &NoControl).unwrap();
-    for j in 0..1024 {
-        for i in 0..1024 {
-            let [x, z] = maps.centre(i, j);
-            if (x - 5.12).powi(2) + (z - 5.12).powi(2) < 0.25 {
-                maps.layers[0].snow[j * 1024 + i] = 1_000_000;
-            }
-        }
-    }
+    put_pile(&mut maps);
     let (t, rep) = best_of(1, || {
         stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
     });
     println!("stabilize 1024², 1 m pile (disc r = 0.5 m): {t:.0} ms, {rep:?} (target ≤ 500)");
 
     // Animation: 12,646 triangles, two 200² maps, steps of accumulate + stabilize.
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], 203, 31, |x, z| {
-        0.02 * (x * 3.0).sin() * z.cos()
-    });
-    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
-    let mesh = b.build();
+    let mesh = animation_scene();
     assert_eq!(mesh.triangles.len(), 12_646);
     let p = ModelParams {
         resolution: 200,
@@ -818,6 +661,37 @@ fn timings() {
         rep.stabilize_iterations,
         rep.unconverged_steps,
         rep.timings
+    );
+}
+
+/// Only the 1 M-triangle probability, for profilers: `SNOW_COVER_K` directions (default 64),
+/// `SNOW_COVER_REPS` repetitions (default 1). E.g. instruction counts on one thread:
+/// `RAYON_NUM_THREADS=1 SNOW_COVER_K=2 valgrind --tool=callgrind <it binary> --ignored --exact
+/// snow_cover::probability_million`.
+#[test]
+#[ignore]
+fn probability_million() {
+    let env = |k: &str, d: usize| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let (k, reps) = (env("SNOW_COVER_K", 64), env("SNOW_COVER_REPS", 1));
+    let mesh = million_scene();
+    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
+    let dirs = snowfall_directions(k, 10.0, None, 1);
+    let (t, _) = best_of(reps, || {
+        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
+    });
+    let sum: f64 = maps.layers[0]
+        .probability
+        .iter()
+        .map(|&p| f64::from(p))
+        .sum();
+    println!(
+        "probability {} tris, K={k}, 1024²: {t:.0} ms (P sum {sum})",
+        mesh.triangles.len()
     );
 }
 
@@ -886,7 +760,7 @@ fn settle_experiment() {
 #[ignore]
 fn probability_experiment() {
     use phenomena_engine::snow_cover::shadow::ShadowMap;
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
     let bounds = mesh.bounds().unwrap();
     let mut sm = ShadowMap::default();
@@ -949,75 +823,6 @@ fn animation_timing() {
 // The honest baseline (issue 4): upward ray casting through a BVH, K rays per point toward the
 // sky along the same snowfall directions. Run with
 // `cargo test --release -p phenomena-engine --test it snow_cover::upward_ray_casting_baseline -- --ignored --nocapture`
-
-/// Snow probability by upward ray casting: for each point, the share of the K directions along
-/// which a ray toward the sky (against the fall direction) leaves the scene unblocked. The ray
-/// starts `eps` above the point (the surface itself must not occlude). BVH: `obvhs`'s compressed
-/// wide BVH (CWBVH, SAH/PLOC "medium" build); rays in parallel over points (rayon).
-fn upward_ray_casting(
-    bvh: &obvhs::cwbvh::CwBvh,
-    tris: &[obvhs::triangle::Triangle],
-    points: &[[f32; 3]],
-    dirs: &[[f32; 3]],
-    eps: f32,
-) -> Vec<f32> {
-    use obvhs::ray::Ray;
-    use rayon::prelude::*;
-    points
-        .par_iter()
-        .map(|p| {
-            let o = glam::Vec3A::new(p[0], p[1] + eps, p[2]);
-            let open = dirs
-                .iter()
-                .filter(|d| {
-                    // `+ 0.0` turns −0 into +0: obvhs 0.4's CWBVH traversal misses every hit for a
-                    // direction with a −0 component (measured; its BVH2 and brute force do not).
-                    let up = glam::Vec3A::new(-d[0] + 0.0, -d[1] + 0.0, -d[2] + 0.0);
-                    bvh.ray_traverse_miss(Ray::new_inf(o, up), |ray, id| {
-                        tris[bvh.primitive_indices[id] as usize].intersect(ray)
-                    })
-                })
-                .count();
-            open as f32 / dirs.len() as f32
-        })
-        .collect()
-}
-
-fn obvhs_scene(mesh: &Mesh) -> (obvhs::cwbvh::CwBvh, Vec<obvhs::triangle::Triangle>) {
-    let v = |i: u32| {
-        let p = mesh.positions[i as usize];
-        glam::Vec3A::new(p[0], p[1], p[2])
-    };
-    let tris: Vec<obvhs::triangle::Triangle> = mesh
-        .triangles
-        .iter()
-        .map(|t| obvhs::triangle::Triangle {
-            v0: v(t[0]),
-            v1: v(t[1]),
-            v2: v(t[2]),
-        })
-        .collect();
-    let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-        &tris,
-        obvhs::BvhBuildParams::medium_build(),
-        &mut std::time::Duration::default(),
-    );
-    (bvh, tris)
-}
-
-/// Snow-map cell centres on their base (every layer): the same receivers as ours.
-fn map_points(maps: &SnowMaps, stride: usize) -> Vec<[f32; 3]> {
-    let mut pts = Vec::new();
-    for l in &maps.layers {
-        for c in (0..maps.len()).step_by(stride) {
-            if !l.base[c].is_nan() {
-                let [x, z] = maps.centre(c % maps.nx, c / maps.nx);
-                pts.push([x, l.base[c], z]);
-            }
-        }
-    }
-    pts
-}
 
 #[test]
 fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_roof() {
@@ -1086,19 +891,7 @@ fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_r
 fn upward_ray_casting_baseline() {
     println!("rayon threads: {}", rayon::current_num_threads());
     // The paper's scale: 5,114 triangles, K = 5, 128² maps (same scene as `timings`).
-    let mut b = Builder {
-        mesh: bumpy_scene(50, 51, 1),
-    };
-    b.quad(
-        [
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [1.0, 1.0, 1.0],
-            [0.0, 1.0, 1.0],
-        ],
-        [0.0, 1.0, 0.0],
-    );
-    let mesh = b.build();
+    let mesh = paper_scene();
     assert_eq!(mesh.triangles.len(), 5114);
     let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
     let dirs = snowfall_directions(5, 10.0, None, 1);
@@ -1124,7 +917,7 @@ fn upward_ray_casting_baseline() {
     );
 
     // 1M triangles, K = 64, 1024²: rays for a 1/64 sample of the cells, extrapolated.
-    let mesh = bumpy_scene(707, 707, 16);
+    let mesh = million_scene();
     let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
     let dirs = snowfall_directions(64, 10.0, None, 1);
     let (t_ours, _) = best_of(1, || {
@@ -1280,5 +1073,79 @@ fn animation_variants(mesh: &Mesh, p: &ModelParams) {
             p.steps as f64 / ms * 1e3,
             worst_slope_excess(&maps, p.repose_angle_deg)
         );
+    }
+}
+
+/// A low slab (underside 0.2 m) floating over a floor under 1.2 m of snowfall: the floor's snow
+/// outside piles far above the gap, but the snow that slides under the slab stays below its
+/// underside (clipped at the layer's ceiling), does fill the gap near the edge, and the mass
+/// balances exactly.
+#[test]
+fn snow_under_a_low_slab_stays_below_its_underside_and_mass_balances() {
+    let mut b = Builder::default();
+    b.floor(10.0);
+    b.cuboid([3.0, 0.2, 3.0], [7.0, 0.3, 7.0]);
+    let mesh = b.build();
+    let p = ModelParams {
+        resolution: 100,
+        directions: 16,
+        steps: 24,
+        duration_h: 12.0,
+        snowfall: Snowfall::Constant(0.1),
+        max_stabilize_iterations: 2000,
+        ..ModelParams::default()
+    };
+    let (maps, rep) = simulate(&mesh, &p, &NoControl, |_, _| {}).unwrap();
+    let mut under = 0;
+    let mut full = 0;
+    let mut outside_max = 0f32;
+    for l in &maps.layers {
+        for c in 0..maps.len() {
+            if l.base[c].is_nan() || l.base[c].abs() > 1e-3 {
+                continue; // only the floor
+            }
+            let top = l.base[c] + l.depth_m(c);
+            if l.ceiling[c].is_finite() {
+                under += 1;
+                assert!(
+                    (l.ceiling[c] - 0.2).abs() < 1e-3,
+                    "ceiling {} at {c}",
+                    l.ceiling[c]
+                );
+                assert!(
+                    top <= l.ceiling[c] + 1e-6,
+                    "snow top {top} above the slab's underside {} at cell {c}",
+                    l.ceiling[c]
+                );
+                if top > l.ceiling[c] - 0.01 {
+                    full += 1;
+                }
+            } else {
+                outside_max = outside_max.max(top);
+            }
+        }
+    }
+    assert!(under > 1000, "{under} floor cells under the slab");
+    assert!(
+        outside_max > 0.5,
+        "outside the snow reaches {outside_max} m only"
+    );
+    assert!(full > 0, "no cell under the slab filled to its underside");
+    let b = &rep.balance;
+    let resting: u64 = b.resting_units.iter().sum();
+    assert_eq!(b.fallen_units, resting + b.lost_units, "{b:?}");
+    let rel = (b.fallen_m3 - b.resting_m3.iter().sum::<f64>() - b.lost_m3).abs() / b.fallen_m3;
+    assert!(rel <= 1e-6, "{rel}");
+    // The snow meshes: no vertex inside the slab's footprint above its underside.
+    let meshes = phenomena_engine::snow_cover::shape::snow_meshes(&maps, 1e-3);
+    for m in &meshes {
+        for q in &m.positions {
+            if q[0] > 3.15 && q[0] < 6.85 && q[2] > 3.15 && q[2] < 6.85 && q[1] < 0.25 {
+                assert!(
+                    q[1] <= 0.2 + 1e-4,
+                    "snow-mesh vertex {q:?} above the underside"
+                );
+            }
+        }
     }
 }

@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 
-use phenomena_engine::geom::mesh::{Mesh, MeshPart};
+use phenomena_engine::geom::mesh::Mesh;
 use phenomena_engine::snow_cover::shape::{
     displace, signed_volume, snow_meshes, subdivide, SnowMesh, DEFAULT_MIN_DEPTH_M,
 };
@@ -16,134 +16,9 @@ use phenomena_engine::snow_cover::{build_snow_maps, simulate, ModelParams, SnowM
 use phenomena_engine::NoControl;
 
 // ---------------------------------------------------------------------------------------------
-// Scene builders (small copies of those in snow_cover.rs)
+// Scene builders (shared with snow_cover.rs and the benchmark)
 
-#[derive(Default)]
-struct Builder {
-    mesh: Mesh,
-}
-
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-impl Builder {
-    fn quad(&mut self, q: [[f32; 3]; 4], out: [f32; 3]) {
-        let base = self.mesh.positions.len() as u32;
-        self.mesh.positions.extend_from_slice(&q);
-        let n = cross(sub(q[1], q[0]), sub(q[2], q[0]));
-        let (a, b, c, d) = (base, base + 1, base + 2, base + 3);
-        if dot(n, out) >= 0.0 {
-            self.mesh.triangles.extend([[a, b, c], [a, c, d]]);
-        } else {
-            self.mesh.triangles.extend([[a, c, b], [a, d, c]]);
-        }
-    }
-
-    /// Horizontal grid of `n × m` quads at height `y(x, z)`, facing up.
-    fn grid(&mut self, x: [f32; 2], z: [f32; 2], n: usize, m: usize, y: impl Fn(f32, f32) -> f32) {
-        let base = self.mesh.positions.len() as u32;
-        for j in 0..=m {
-            for i in 0..=n {
-                let px = x[0] + (x[1] - x[0]) * i as f32 / n as f32;
-                let pz = z[0] + (z[1] - z[0]) * j as f32 / m as f32;
-                self.mesh.positions.push([px, y(px, pz), pz]);
-            }
-        }
-        let row = (n + 1) as u32;
-        for j in 0..m as u32 {
-            for i in 0..n as u32 {
-                let a = base + j * row + i;
-                self.mesh.triangles.push([a, a + row, a + 1]);
-                self.mesh.triangles.push([a + 1, a + row, a + row + 1]);
-            }
-        }
-    }
-
-    fn cuboid(&mut self, lo: [f32; 3], hi: [f32; 3]) {
-        let p = |x: usize, y: usize, z: usize| {
-            [
-                if x == 0 { lo[0] } else { hi[0] },
-                if y == 0 { lo[1] } else { hi[1] },
-                if z == 0 { lo[2] } else { hi[2] },
-            ]
-        };
-        let faces = [
-            (
-                [p(0, 1, 0), p(1, 1, 0), p(1, 1, 1), p(0, 1, 1)],
-                [0.0, 1.0, 0.0],
-            ),
-            (
-                [p(0, 0, 0), p(1, 0, 0), p(1, 0, 1), p(0, 0, 1)],
-                [0.0, -1.0, 0.0],
-            ),
-            (
-                [p(0, 0, 0), p(0, 1, 0), p(0, 1, 1), p(0, 0, 1)],
-                [-1.0, 0.0, 0.0],
-            ),
-            (
-                [p(1, 0, 0), p(1, 1, 0), p(1, 1, 1), p(1, 0, 1)],
-                [1.0, 0.0, 0.0],
-            ),
-            (
-                [p(0, 0, 0), p(1, 0, 0), p(1, 1, 0), p(0, 1, 0)],
-                [0.0, 0.0, -1.0],
-            ),
-            (
-                [p(0, 0, 1), p(1, 0, 1), p(1, 1, 1), p(0, 1, 1)],
-                [0.0, 0.0, 1.0],
-            ),
-        ];
-        for (q, out) in faces {
-            self.quad(q, out);
-        }
-    }
-
-    fn floor(&mut self, size: f32) {
-        self.quad(
-            [
-                [0.0, 0.0, 0.0],
-                [size, 0.0, 0.0],
-                [size, 0.0, size],
-                [0.0, 0.0, size],
-            ],
-            [0.0, 1.0, 0.0],
-        );
-    }
-
-    /// A table: top slab from `h − 0.05` to `h`, four 0.1 m legs.
-    fn table(&mut self, x: [f32; 2], z: [f32; 2], h: f32) {
-        self.cuboid([x[0], h - 0.05, z[0]], [x[1], h, z[1]]);
-        for (lx, lz) in [
-            (x[0], z[0]),
-            (x[1] - 0.1, z[0]),
-            (x[0], z[1] - 0.1),
-            (x[1] - 0.1, z[1] - 0.1),
-        ] {
-            self.cuboid([lx, 0.0, lz], [lx + 0.1, h - 0.05, lz + 0.1]);
-        }
-    }
-
-    fn build(mut self) -> Mesh {
-        self.mesh.parts = vec![MeshPart {
-            name: "scene".into(),
-            first_triangle: 0,
-            triangle_count: self.mesh.triangles.len(),
-            base_color: [0.8, 0.8, 0.8, 1.0],
-        }];
-        self.mesh
-    }
-}
+use phenomena_engine::snow_cover::scenes::{cross, dot, sub, SceneBuilder as Builder};
 
 /// Every undirected edge in exactly two triangles, once in each direction (closed, consistently
 /// wound); no degenerate triangle.
