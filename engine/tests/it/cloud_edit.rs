@@ -7,7 +7,7 @@ use phenomena_engine::cloud::edit::ambient::cloud_voxels;
 use phenomena_engine::cloud::edit::{ambient, sun_color, sun_direction};
 use phenomena_engine::cloud::light::{transmittance_marched, SunLight};
 use phenomena_engine::cloud::march::{render_layers, Prepared};
-use phenomena_engine::cloud::multigrid::{propagate, SolveOptions};
+use phenomena_engine::cloud::multigrid::{propagate, SolveOptions, SolveStats};
 use phenomena_engine::cloud::run::render;
 use phenomena_engine::cloud::{apply_edit, edit_outputs, CloudState, Edit, EditError, View};
 use phenomena_engine::geom::Volume;
@@ -22,6 +22,25 @@ use phenomena_engine::cloud::procedural::{cumulus, cumulus_pins};
 
 fn limits() -> Limits {
     Limits::default()
+}
+
+/// `propagate` with the default options, every unreached voxel 0.
+fn solve(
+    dims: [usize; 3],
+    guide: &[f32],
+    cloud: Option<&[bool]>,
+    pins: &[(usize, [f32; 3])],
+) -> (Vec<[f32; 3]>, SolveStats) {
+    propagate(
+        dims,
+        guide,
+        cloud,
+        pins,
+        &|_| [0.0; 3],
+        SolveOptions::default(),
+        &NoControl,
+    )
+    .unwrap()
 }
 
 /// Pixel of world point `p` in a `w × h` view of `cam`.
@@ -260,7 +279,8 @@ fn an_ambient_edit_leaves_what_its_paint_cannot_reach_as_the_base_showed_it() {
     // (a separate piece of cloud) gets no pin and keeps the ambient the base version showed —
     // first the uniform `ambient`, then the first edit's field — under each version's scale.
     let (v, s) = slab_and_block();
-    let view = json!({"width": 80, "height": 80, "camera": {"azimuth_deg": 90, "elevation_deg": 0}});
+    let view =
+        json!({"width": 80, "height": 80, "camera": {"azimuth_deg": 90, "elevation_deg": 0}});
     let probe = json!({"strokes": [{"color": "#ffffff", "pixels": [[0, 0]]}]});
     let cam = Edit::from_json("ambient", &with(view.clone(), probe), &limits())
         .unwrap()
@@ -285,7 +305,10 @@ fn an_ambient_edit_leaves_what_its_paint_cannot_reach_as_the_base_showed_it() {
     let e1 = edit(2.0);
     let Edit::Ambient(a1) = &e1 else { panic!() };
     let pins = ambient::pins(&v, a1);
-    assert!(!pins.is_empty() && pins.iter().all(|(i, _)| (i / n) % n >= 22), "{pins:?}");
+    assert!(
+        !pins.is_empty() && pins.iter().all(|(i, _)| (i / n) % n >= 22),
+        "{pins:?}"
+    );
     let v1 = apply_edit(&v, &s, None, &e1, &NoControl).unwrap();
     let f1 = v1.ambient.as_ref().unwrap();
     for &i in &slab {
@@ -295,7 +318,11 @@ fn an_ambient_edit_leaves_what_its_paint_cannot_reach_as_the_base_showed_it() {
     // The block took the paint (one colour: all of it).
     let red = [0xff, 0x40, 0x20].map(srgb8_to_linear);
     for q in 0..3 {
-        assert!((f1.rgb[block][q] - red[q]).abs() < 1e-4, "{:?}", f1.rgb[block]);
+        assert!(
+            (f1.rgb[block][q] - red[q]).abs() < 1e-4,
+            "{:?}",
+            f1.rgb[block]
+        );
     }
     let v2 = apply_edit(&v, &v1.state, Some(f1), &edit(0.5), &NoControl).unwrap();
     let f2 = v2.ambient.as_ref().unwrap();
@@ -453,16 +480,7 @@ fn propagation_follows_the_guide() {
         (idx(24, 16, 16), blue),
         (idx(28, 28, 3), blue),
     ];
-    let (u, stats) = propagate(
-        dims,
-        &guide,
-        None,
-        &pins,
-        &|_| [0.0; 3],
-        SolveOptions::default(),
-        &NoControl,
-    )
-    .unwrap();
+    let (u, stats) = solve(dims, &guide, None, &pins);
     assert!(*stats.residuals.last().unwrap() <= 1e-6);
     for (i, c) in &pins {
         assert_eq!(u[*i], *c);
@@ -551,16 +569,7 @@ fn propagation_is_smooth_where_the_guide_is_smooth() {
             pins.push((n - 1 + n * (y + n * z), [0.0, 0.0, 1.0]));
         }
     }
-    let (u, _) = propagate(
-        dims,
-        &guide,
-        None,
-        &pins,
-        &|_| [0.0; 3],
-        SolveOptions::default(),
-        &NoControl,
-    )
-    .unwrap();
+    let (u, _) = solve(dims, &guide, None, &pins);
     let mut worst = 0.0f64;
     for (i, c) in u.iter().enumerate() {
         let t = (i % n) as f64 / (n - 1) as f64;
@@ -591,16 +600,7 @@ fn cumulus_problem(n: usize) -> (Volume, Vec<f32>, Vec<(usize, [f32; 3])>) {
 fn assert_multigrid_rate(n: usize, cloud_only: bool, max_iterations: usize) {
     let (v, guide, pins) = cumulus_problem(n);
     let cloud = cloud_only.then(|| cloud_voxels(&v));
-    let (_, stats) = propagate(
-        v.dims,
-        &guide,
-        cloud.as_deref(),
-        &pins,
-        &|_| [0.0; 3],
-        SolveOptions::default(),
-        &NoControl,
-    )
-    .unwrap();
+    let (_, stats) = solve(v.dims, &guide, cloud.as_deref(), &pins);
     let r = &stats.residuals;
     eprintln!(
         "{n}³ (cloud only: {cloud_only}): {} levels, set-up {:?}, solve {:?}, residuals {r:?}",
@@ -659,19 +659,7 @@ fn ambient_field_is_the_same_across_thread_counts() {
             .num_threads(t)
             .build()
             .unwrap()
-            .install(|| {
-                propagate(
-                    v.dims,
-                    &guide,
-                    Some(&cloud_voxels(&v)),
-                    &pins,
-                    &|_| [0.0; 3],
-                    SolveOptions::default(),
-                    &NoControl,
-                )
-                .unwrap()
-                .0
-            })
+            .install(|| solve(v.dims, &guide, Some(&cloud_voxels(&v)), &pins).0)
     };
     assert_eq!(run(1), run(3));
 }
