@@ -26,6 +26,7 @@
 //! Cost: K × (rasterise the scene + test every layer cell). Allocates one shadow map and one
 //! `u32` counter grid per layer per rayon chunk.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use super::maps::SnowMaps;
@@ -348,7 +349,9 @@ impl RowScratch {
 /// (so the same bits), split in two passes per row: a branch-free pass computing each cell's texel
 /// and threshold (vectorised by the compiler: the square root and division of the bias four cells
 /// at a time), then the lookups. Cells without a surface inside a row's span get a meaningless
-/// count; [`snow_probability`] sets their P to 0.
+/// count; [`snow_probability`] sets their P to 0. Compiled for AVX2 too and chosen at run time
+/// (no FMA: the same bits).
+#[multiversion(targets("x86_64+avx2"))]
 fn lit_cells(
     recv: &Receivers,
     k: usize,

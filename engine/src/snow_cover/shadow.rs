@@ -22,6 +22,8 @@
 //! Cost: one projection per vertex and one bounding box per triangle; per covered texel a few
 //! multiply-adds. No allocation once the buffers have grown ([`ShadowMap::render`] reuses them).
 
+use multiversion::multiversion;
+
 use crate::geom::mesh::Mesh;
 
 /// Largest shadow-map side, texels.
@@ -119,21 +121,13 @@ impl ShadowMap {
                 .iter()
                 .map(|&p| [dot(p, su) - gu0, dot(p, st) - gt0, dot(p, w)]),
         );
-        let (wd, ht) = (self.width, self.height);
-        let proj = &self.proj;
-        let depth = &mut self.depth;
-        for tris in mesh.triangles.chunks(LANES) {
-            let mut v = [[[0f32; LANES]; 3]; 3];
-            for (q, tri) in tris.iter().enumerate() {
-                for (k, &i) in tri.iter().enumerate() {
-                    let p = proj[i as usize];
-                    v[k][0][q] = p[0];
-                    v[k][1][q] = p[1];
-                    v[k][2][q] = p[2];
-                }
-            }
-            raster_batch(depth, wd, ht, &v, tris.len());
-        }
+        draw_triangles(
+            &mut self.depth,
+            self.width,
+            self.height,
+            &self.proj,
+            &mesh.triangles,
+        );
     }
 
     /// Bias (metres) for a receiver with unit surface normal `n` (module doc); `extent` is the
@@ -161,6 +155,31 @@ impl ShadowMap {
             return false;
         }
         self.depth[y as usize * self.width + x as usize] > dot(p, self.w) + bias
+    }
+}
+
+/// Draws `triangles` (vertex indices into `proj`, the projected vertices) into the `wd × ht`
+/// max-depth buffer, [`LANES`] at a time ([`raster_batch`]). Compiled for AVX2 too and chosen at
+/// run time (the same operations in wider registers: the same bits).
+#[multiversion(targets("x86_64+avx2"))]
+fn draw_triangles(
+    depth: &mut [f32],
+    wd: usize,
+    ht: usize,
+    proj: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+) {
+    for tris in triangles.chunks(LANES) {
+        let mut v = [[[0f32; LANES]; 3]; 3];
+        for (q, tri) in tris.iter().enumerate() {
+            for (k, &i) in tri.iter().enumerate() {
+                let p = proj[i as usize];
+                v[k][0][q] = p[0];
+                v[k][1][q] = p[1];
+                v[k][2][q] = p[2];
+            }
+        }
+        raster_batch(depth, wd, ht, &v, tris.len());
     }
 }
 
