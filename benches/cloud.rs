@@ -167,7 +167,7 @@ struct LlwCsr {
 }
 
 fn llw_csr(v: &Volume, guide: &[f32], pins: &[(usize, [f32; 3])]) -> LlwCsr {
-    let sys = llw_system(v.dims, guide, Some(&cloud_voxels(&v)), pins);
+    let sys = llw_system(v.dims, guide, Some(&cloud_voxels(v)), pins);
     let m = sys.b.len();
     let (mut indptr, mut indices, mut data) = (vec![0usize], vec![], vec![]);
     let mut diag = vec![0f64; m];
