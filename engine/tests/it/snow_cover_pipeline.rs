@@ -289,3 +289,43 @@ fn displaced_glb_carries_coverage_and_flake_texture() {
     img.data = want;
     assert_eq!(png, encode_rgba(&img).as_slice(), "same PNG bytes");
 }
+
+/// With no `up_axis`, the decoder picks the convention each real mesh stands in (the Inventor
+/// scenes are Z-up content in GLB, the Stanford scans Y-up in STL/PLY), and keeps the reader's
+/// default where it already stands (the teapot, the house).
+#[test]
+fn default_up_axis_stands_the_real_meshes_up() {
+    use phenomena_engine::mesh_view::{MeshView, MeshViewDefaults, UpAxisParam, WireMeshView};
+    let l = Limits::default();
+    let decode = |file: &str, up: Option<UpAxisParam>| {
+        let view = MeshView::from_wire(
+            WireMeshView {
+                up_axis: up,
+                ..WireMeshView::default()
+            },
+            MeshViewDefaults::default(),
+            &l,
+        )
+        .unwrap();
+        let path = format!(
+            "{}/../../shared/data/mesh/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        view.decode(&std::fs::read(path).unwrap(), Some(file), &l)
+            .unwrap()
+            .positions
+    };
+    for (file, up) in [
+        ("inventor_table.glb", UpAxisParam::Z),
+        ("inventor_chesschairs.glb", UpAxisParam::Z),
+        ("fzk_haus.glb", UpAxisParam::Y),
+        ("armadillo.stl", UpAxisParam::Y),
+        ("bunny00.ply", UpAxisParam::Y),
+        ("teapot_npm.obj", UpAxisParam::Y),
+    ] {
+        assert!(
+            decode(file, None) == decode(file, Some(up)),
+            "{file}: default up axis should be {up:?}"
+        );
+    }
+}
