@@ -57,6 +57,78 @@ impl Default for MeshViewDefaults {
     }
 }
 
+/// How much better the other up convention must stand (see [`support_share`]) to be chosen when
+/// `up_axis` is not given.
+const AUTO_UP_MARGIN: f64 = 2.0;
+
+/// How well a scene (Y up) stands on the ground: the area of the 2-D convex hull (in X–Z) of the
+/// vertices within 1 % of the height above the lowest one, over the area of the scene's X–Z
+/// bounding box (0 for a scene with no extent). A table on its feet, a room on its floor, a house
+/// on its plot, a teapot on its base or a bunny on its flat bottom score high; the same scene on
+/// its side touches the ground along a line or a point and scores near 0.
+///
+/// **Our reading of "believable defaults on the real meshes" for the up axis** (the issue): files
+/// come in two conventions (Y up: glTF by its spec, the Stanford scans, most OBJ; Z up: CAD, STL,
+/// the Inventor scenes written into GLB), and a file does not say which it used. When `up_axis`
+/// is not given, the decoder compares the reader's default with the other convention and takes
+/// the other only when it stands [`AUTO_UP_MARGIN`] times better. Rejected: the axis most normals
+/// align with (a teapot's body of revolution picks its side). Cost: one pass over the vertices and
+/// a hull of the lowest ones, `O(n log n)`.
+pub fn support_share(points: impl Iterator<Item = [f32; 3]> + Clone) -> f64 {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in points.clone() {
+        for k in 0..3 {
+            lo[k] = lo[k].min(f64::from(p[k]));
+            hi[k] = hi[k].max(f64::from(p[k]));
+        }
+    }
+    let foot = (hi[0] - lo[0]) * (hi[2] - lo[2]);
+    if !(foot > 0.0 && foot.is_finite()) {
+        return 0.0;
+    }
+    let cut = lo[1] + 0.01 * (hi[1] - lo[1]);
+    let mut low: Vec<[f64; 2]> = points
+        .filter(|p| f64::from(p[1]) <= cut)
+        .map(|p| [f64::from(p[0]), f64::from(p[2])])
+        .collect();
+    low.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    low.dedup();
+    if low.len() < 3 {
+        return 0.0;
+    }
+    // Andrew's monotone chain.
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * low.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
+            Box::new(low.iter())
+        } else {
+            Box::new(low.iter().rev())
+        };
+        for &p in iter {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    let area = 0.5
+        * (0..hull.len())
+            .map(|i| {
+                let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+                a[0] * b[1] - a[1] * b[0]
+            })
+            .sum::<f64>()
+            .abs();
+    area / foot
+}
+
 /// The validated view (serialised flat into the pipeline's canonical parameters).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MeshView {
@@ -67,8 +139,9 @@ pub struct MeshView {
     /// Orbit around the scene's centre (defaults azimuth 210°, elevation 35°, fov 40°, distance
     /// framing the scene) or eye/target.
     pub camera: CameraSpec,
-    /// Up axis for OBJ/STL/PLY; glTF is Y-up by its spec unless this is given. Default: Z for
-    /// STL/PLY, Y for OBJ and glTF.
+    /// Up axis of the input; given, it applies to every format (glTF too). Default (null): the
+    /// reader's convention (Z for STL/PLY, Y for OBJ and glTF) unless the other one stands on the
+    /// ground at least twice as well ([`support_share`]).
     pub up_axis: Option<UpAxisParam>,
     /// Sun for shading, compass azimuth degrees, 0–360. Default 150.
     pub sun_azimuth_deg: f64,
@@ -124,14 +197,35 @@ impl MeshView {
             sniff_mesh(bytes, filename),
             Some(MeshFormat::Gltf | MeshFormat::Glb)
         );
-        if gltf && up == Some(UpAxis::Z) {
-            // Z-up → Y-up: (x, y, z) → (x, z, −y), a proper rotation (winding kept).
+        // Z-up → Y-up: (x, y, z) → (x, z, −y), and back; proper rotations (winding kept).
+        let z_to_y: fn([f32; 3]) -> [f32; 3] = |v| [v[0], v[2], -v[1]];
+        let y_from_z: fn([f32; 3]) -> [f32; 3] = |v| [v[0], -v[2], v[1]];
+        let rotate = |mesh: &mut Mesh, r: fn([f32; 3]) -> [f32; 3]| {
             for v in mesh
                 .positions
                 .iter_mut()
                 .chain(mesh.normals.iter_mut().flatten())
             {
-                *v = [v[0], v[2], -v[1]];
+                *v = r(*v);
+            }
+        };
+        if gltf && up == Some(UpAxis::Z) {
+            rotate(&mut mesh, z_to_y);
+        }
+        if up.is_none() {
+            // The other convention than the reader's default (glTF, OBJ: Y-up; STL, PLY: Z-up).
+            let other = if matches!(
+                sniff_mesh(bytes, filename),
+                Some(MeshFormat::Stl | MeshFormat::Ply)
+            ) {
+                y_from_z
+            } else {
+                z_to_y
+            };
+            let here = support_share(mesh.positions.iter().copied());
+            let there = support_share(mesh.positions.iter().map(|&p| other(p)));
+            if there > AUTO_UP_MARGIN * here {
+                rotate(&mut mesh, other);
             }
         }
         Ok(mesh)

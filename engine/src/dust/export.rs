@@ -216,6 +216,8 @@ pub fn dusty_glb(sh: &Shells, atlas: &TextureAtlas, extras: Option<Value>) -> Ve
         uvs: Some(&m.uvs),
         colors: Some(&m.colors),
         triangles: &m.triangles,
+        custom: &[],
+        overlay: None,
         material: GlbMaterial {
             name: m.name.clone(),
             base_color: [c[0], c[1], c[2], 1.0],

@@ -3,14 +3,16 @@
 //! "Outputs": `dusty.glb`).
 //!
 //! **Structure.** One glTF node per [`GlbNode`], each with its own mesh of one triangle primitive
-//! and its own material, all children of scene 0 in input order. Nodes with no triangles or no
+//! (two when the node has an [`GlbNode::overlay`]: the overlay is the second) and its own material
+//! per primitive, all children of scene 0 in input order. Nodes with no triangles or no
 //! positions are skipped (the validator rejects empty accessors), so node `i` of the file is the
 //! `i`-th *non-empty* input node. No node transforms: positions are already in world space,
 //! metres, Y up (glTF's frame; see [`crate::geom::mesh`]).
 //!
 //! **Layout.** Per node, in this order: POSITION (float VEC3, with min/max), NORMAL (float VEC3,
 //! renormalised to unit length; a zero normal becomes +Y), TEXCOORD_0 (float VEC2), COLOR_0
-//! (float VEC4, linear RGBA clamped to 0..1 per the glTF spec), indices (u32), then the node's
+//! (float VEC4, linear RGBA clamped to 0..1 per the glTF spec), the application-specific
+//! attributes (`_NAME`, float SCALAR) in the node's order, indices (u32), then the node's
 //! PNG texture if any (an `image/png` bufferView, sampler with REPEAT wrap and linear filters).
 //! Every bufferView starts on a 4-byte boundary. The container (chunk padding) is
 //! [`super::glb::glb_container`]'s. `asset.generator` is `"phenomena"`; `extras` goes on the root
@@ -50,6 +52,14 @@ pub struct GlbNode<'a> {
     /// Triangles, counter-clockwise seen from outside, indices into `positions`.
     pub triangles: &'a [[u32; 3]],
     pub material: GlbMaterial,
+    /// Application-specific per-vertex scalars (glTF 2.0 §3.7.2.1: semantics starting with `_`),
+    /// exported as float SCALAR attributes, each as long as `positions`. Panics on a name without
+    /// the leading `_` (a caller bug).
+    pub custom: &'a [(&'a str, &'a [f32])],
+    /// A second primitive of this node's mesh, drawn with its own arrays and material (e.g. a
+    /// blended decal layer); its `name` and its own `overlay` are ignored, its `custom`
+    /// attributes are written. Skipped when empty.
+    pub overlay: Option<&'a GlbNode<'a>>,
 }
 
 /// A metallic-roughness material.
@@ -89,40 +99,99 @@ impl Default for GlbMaterial {
 /// Encode `nodes` as a GLB (see the module doc). `extras` (any JSON) is stored as the root
 /// object's `extras`. With no non-empty node the result is a valid GLB with an empty scene.
 pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
-    let mut bin: Vec<u8> = Vec::new();
-    let mut views: Vec<Value> = Vec::new();
-    let mut accessors: Vec<Value> = Vec::new();
+    let mut b = Builder::default();
     let mut gl_nodes: Vec<Value> = Vec::new();
     let mut meshes: Vec<Value> = Vec::new();
-    let mut materials: Vec<Value> = Vec::new();
-    let mut images: Vec<Value> = Vec::new();
-    let mut textures: Vec<Value> = Vec::new();
 
-    // Append bytes as a new bufferView (4-byte aligned); returns its index.
-    let mut push_view = |bin: &mut Vec<u8>, bytes: &[u8], target: Option<u32>| -> usize {
-        while bin.len() % 4 != 0 {
-            bin.push(0);
+    for node in nodes {
+        let Some(first) = b.primitive(node) else {
+            continue;
+        };
+        let mut primitives = vec![first];
+        if let Some(second) = node.overlay.and_then(|o| b.primitive(o)) {
+            primitives.push(second);
         }
-        let off = bin.len();
-        bin.extend_from_slice(bytes);
+        meshes.push(json!({ "name": node.name, "primitives": primitives }));
+        gl_nodes.push(json!({ "name": node.name, "mesh": meshes.len() - 1 }));
+    }
+
+    let mut doc = json!({
+        "asset": { "version": "2.0", "generator": "phenomena" },
+        "scene": 0,
+        // An empty `nodes` array is an error for the validator: an empty scene has none.
+        "scenes": [{}],
+    });
+    if !gl_nodes.is_empty() {
+        doc["scenes"][0]["nodes"] = json!((0..gl_nodes.len()).collect::<Vec<_>>());
+        doc["nodes"] = json!(gl_nodes);
+        doc["meshes"] = json!(meshes);
+        doc["materials"] = json!(b.materials);
+        doc["accessors"] = json!(b.accessors);
+        doc["bufferViews"] = json!(b.views);
+        doc["buffers"] = json!([{ "byteLength": b.bin.len() }]);
+    }
+    if !b.textures.is_empty() {
+        doc["samplers"] = json!([{
+            "magFilter": LINEAR, "minFilter": LINEAR, "wrapS": REPEAT, "wrapT": REPEAT
+        }]);
+        doc["images"] = json!(b.images);
+        doc["textures"] = json!(b.textures);
+    }
+    if let Some(e) = extras {
+        doc["extras"] = e;
+    }
+    glb_container(&doc, &b.bin)
+}
+
+/// The growing binary buffer and the JSON arrays that index it.
+#[derive(Default)]
+struct Builder {
+    bin: Vec<u8>,
+    views: Vec<Value>,
+    accessors: Vec<Value>,
+    materials: Vec<Value>,
+    images: Vec<Value>,
+    textures: Vec<Value>,
+}
+
+impl Builder {
+    /// Append bytes as a new bufferView (4-byte aligned); returns its index.
+    fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+        while self.bin.len() % 4 != 0 {
+            self.bin.push(0);
+        }
+        let off = self.bin.len();
+        self.bin.extend_from_slice(bytes);
         let mut v = json!({ "buffer": 0, "byteOffset": off, "byteLength": bytes.len() });
         if let Some(t) = target {
             v["target"] = json!(t);
         }
-        views.push(v);
-        views.len() - 1
-    };
+        self.views.push(v);
+        self.views.len() - 1
+    }
 
-    for node in nodes {
+    /// A float vertex attribute (`ty` VEC2/VEC3/VEC4/SCALAR) in its own view; returns the
+    /// accessor's index.
+    fn attribute(&mut self, bytes: &[u8], count: usize, ty: &str) -> usize {
+        let v = self.view(bytes, Some(ARRAY_BUFFER));
+        accessor(&mut self.accessors, v, count, ty, FLOAT)
+    }
+
+    /// The node's arrays, material and texture as one triangle primitive (JSON); `None` for a
+    /// node with no positions or no triangles (skipped: the validator rejects empty accessors).
+    fn primitive(&mut self, node: &GlbNode) -> Option<Value> {
         let n = node.positions.len();
         if n == 0 || node.triangles.is_empty() {
-            continue;
+            return None;
         }
         for (what, len) in [
             ("normals", node.normals.map(<[_]>::len)),
             ("uvs", node.uvs.map(<[_]>::len)),
             ("colors", node.colors.map(<[_]>::len)),
-        ] {
+        ]
+        .into_iter()
+        .chain(node.custom.iter().map(|(k, v)| (*k, Some(v.len()))))
+        {
             if let Some(len) = len {
                 assert_eq!(len, n, "{}: {what} must match positions", node.name);
             }
@@ -138,37 +207,37 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
                 hi[k] = hi[k].max(p[k]);
             }
         }
-        let v = push_view(&mut bin, &flat_bytes(node.positions), Some(ARRAY_BUFFER));
-        let a = accessor(&mut accessors, v, n, "VEC3", FLOAT);
-        accessors[a]["min"] = json!(lo);
-        accessors[a]["max"] = json!(hi);
+        let a = self.attribute(&flat_bytes(node.positions), n, "VEC3");
+        self.accessors[a]["min"] = json!(lo);
+        self.accessors[a]["max"] = json!(hi);
         attributes.insert("POSITION".into(), json!(a));
 
         if let Some(normals) = node.normals {
             let unit: Vec<[f32; 3]> = normals.iter().map(|&v| unit_normal(v)).collect();
-            let v = push_view(&mut bin, &flat_bytes(&unit), Some(ARRAY_BUFFER));
-            attributes.insert(
-                "NORMAL".into(),
-                json!(accessor(&mut accessors, v, n, "VEC3", FLOAT)),
-            );
+            let a = self.attribute(&flat_bytes(&unit), n, "VEC3");
+            attributes.insert("NORMAL".into(), json!(a));
         }
         if let Some(uvs) = node.uvs {
-            let v = push_view(&mut bin, &flat_bytes(uvs), Some(ARRAY_BUFFER));
-            attributes.insert(
-                "TEXCOORD_0".into(),
-                json!(accessor(&mut accessors, v, n, "VEC2", FLOAT)),
-            );
+            let a = self.attribute(&flat_bytes(uvs), n, "VEC2");
+            attributes.insert("TEXCOORD_0".into(), json!(a));
         }
         if let Some(colors) = node.colors {
             let c: Vec<[f32; 4]> = colors
                 .iter()
                 .map(|c| c.map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) }))
                 .collect();
-            let v = push_view(&mut bin, &flat_bytes(&c), Some(ARRAY_BUFFER));
-            attributes.insert(
-                "COLOR_0".into(),
-                json!(accessor(&mut accessors, v, n, "VEC4", FLOAT)),
+            let a = self.attribute(&flat_bytes(&c), n, "VEC4");
+            attributes.insert("COLOR_0".into(), json!(a));
+        }
+        for (semantic, values) in node.custom {
+            assert!(
+                semantic.starts_with('_'),
+                "{}: custom attribute {semantic} must start with '_'",
+                node.name
             );
+            let bytes: Vec<u8> = values.iter().flat_map(|x| x.to_le_bytes()).collect();
+            let a = self.attribute(&bytes, n, "SCALAR");
+            attributes.insert((*semantic).into(), json!(a));
         }
         let idx: Vec<u8> = node
             .triangles
@@ -181,9 +250,9 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
             })
             .flat_map(u32::to_le_bytes)
             .collect();
-        let v = push_view(&mut bin, &idx, Some(ELEMENT_ARRAY_BUFFER));
+        let v = self.view(&idx, Some(ELEMENT_ARRAY_BUFFER));
         let indices = accessor(
-            &mut accessors,
+            &mut self.accessors,
             v,
             node.triangles.len() * 3,
             "SCALAR",
@@ -198,10 +267,12 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
             "roughnessFactor": m.roughness.clamp(0.0, 1.0),
         });
         if let (Some(png), Some(_)) = (&m.texture_png, node.uvs) {
-            let v = push_view(&mut bin, png, None);
-            images.push(json!({ "bufferView": v, "mimeType": "image/png" }));
-            textures.push(json!({ "sampler": 0, "source": images.len() - 1 }));
-            pbr["baseColorTexture"] = json!({ "index": textures.len() - 1, "texCoord": 0 });
+            let v = self.view(png, None);
+            self.images
+                .push(json!({ "bufferView": v, "mimeType": "image/png" }));
+            self.textures
+                .push(json!({ "sampler": 0, "source": self.images.len() - 1 }));
+            pbr["baseColorTexture"] = json!({ "index": self.textures.len() - 1, "texCoord": 0 });
         }
         let name = if m.name.is_empty() {
             node.name
@@ -215,40 +286,13 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
         if m.double_sided {
             mat["doubleSided"] = json!(true);
         }
-        materials.push(mat);
+        self.materials.push(mat);
 
-        meshes.push(json!({ "name": node.name, "primitives": [{
-            "attributes": attributes, "indices": indices, "material": materials.len() - 1, "mode": 4
-        }]}));
-        gl_nodes.push(json!({ "name": node.name, "mesh": meshes.len() - 1 }));
+        Some(json!({
+            "attributes": attributes, "indices": indices,
+            "material": self.materials.len() - 1, "mode": 4
+        }))
     }
-
-    let mut doc = json!({
-        "asset": { "version": "2.0", "generator": "phenomena" },
-        "scene": 0,
-        // An empty `nodes` array is an error for the validator: an empty scene has none.
-        "scenes": [{}],
-    });
-    if !gl_nodes.is_empty() {
-        doc["scenes"][0]["nodes"] = json!((0..gl_nodes.len()).collect::<Vec<_>>());
-        doc["nodes"] = json!(gl_nodes);
-        doc["meshes"] = json!(meshes);
-        doc["materials"] = json!(materials);
-        doc["accessors"] = json!(accessors);
-        doc["bufferViews"] = json!(views);
-        doc["buffers"] = json!([{ "byteLength": bin.len() }]);
-    }
-    if !textures.is_empty() {
-        doc["samplers"] = json!([{
-            "magFilter": LINEAR, "minFilter": LINEAR, "wrapS": REPEAT, "wrapT": REPEAT
-        }]);
-        doc["images"] = json!(images);
-        doc["textures"] = json!(textures);
-    }
-    if let Some(e) = extras {
-        doc["extras"] = e;
-    }
-    glb_container(&doc, &bin)
 }
 
 /// One part of an input [`Mesh`] as a self-contained node: only the vertices its triangles use,
@@ -277,6 +321,8 @@ impl PartNode {
             uvs: self.uvs.as_deref(),
             colors: None,
             triangles: &self.triangles,
+            custom: &[],
+            overlay: None,
             material: GlbMaterial {
                 name: self.name.clone(),
                 base_color: self.base_color,

@@ -3,10 +3,18 @@
 //! (step 7) → outputs: `snow.glb`, `scene.glb`, `displaced.glb`, `render.png`, `timelapse.png`
 //! (when `frames` > 1) and `report.json` with the mass balance.
 //!
-//! Adapted: `displaced.glb` carries the snow as vertex colour (`COLOR_0` = white where the snow is
-//! at least `sparse_depth` deep, blended by the sparse-flake coverage below that, over the part's
-//! grey); the per-vertex probability and depth are summarised in `report.json`, not written as
-//! custom glTF attributes.
+//! `displaced.glb` (polygon mode) is one node with two primitives of one mesh:
+//!
+//! 1. the displaced surface, opaque and double-sided, `COLOR_0` grey whitened by the snow amount
+//!    `min(depth / sparse_depth, 1)` (white where the snow is at least `sparse_depth` deep), with
+//!    the application-specific float attributes `_SNOW_COVERAGE` (the sparse-flake coverage of
+//!    step 6, [`vertex_coverage`]), `_SNOW_DEPTH` (metres) and `_SNOW_PROBABILITY` (0–1), one
+//!    value per vertex, for tools that read them;
+//! 2. the sparse flakes: [`flake_overlay`]'s shell lifted a thousandth of the diagonal off the
+//!    surface, `alphaMode: BLEND`, the generated [`flake_texture`] (256², seeded by `seed`, PNG in a
+//!    bufferView, REPEAT) through tri-planar `TEXCOORD_0` at 25 cm a tile, and `COLOR_0` alpha =
+//!    the coverage, so core glTF's `factor × texture × COLOR_0` shows flakes only where the
+//!    coverage is partial (see [`flake_overlay`] for why a lifted shell and not a coplanar copy).
 
 use std::time::Instant;
 
@@ -16,7 +24,7 @@ use super::params::Params;
 use super::probability::main_direction;
 use super::shape::{displace, snow_meshes, SnowMesh, DEFAULT_MIN_DEPTH_M};
 use super::snowfall::simulate;
-use super::sparse::vertex_coverage;
+use super::sparse::{flake_overlay, flake_texture, vertex_coverage, FLAKE_TEXTURE_SIZE};
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
@@ -27,6 +35,21 @@ use crate::{Canceled, Control, InputError, NoControl, Output};
 
 /// Snow's albedo, linear RGB.
 const SNOW: [f32; 3] = [0.9, 0.92, 0.95];
+
+/// The displaced surface's colour where it has no snow, linear grey.
+const GROUND: f32 = 0.55;
+
+/// The snow amount of the sparse-snow rule, `min(depth / sparse_depth, 1)` (any snow counts as
+/// full when `sparse_depth` is 0; see [`super::sparse`]).
+fn amount(depth: f32, sparse_depth: f32) -> f32 {
+    if depth.is_nan() || depth <= 0.0 {
+        0.0
+    } else if sparse_depth <= 0.0 {
+        1.0
+    } else {
+        (depth / sparse_depth).min(1.0)
+    }
+}
 
 /// Decodes the scene (see [`crate::mesh_view::MeshView::decode`]).
 pub fn decode(
@@ -78,6 +101,8 @@ fn snow_node(s: &SnowMesh) -> GlbNode<'_> {
         uvs: None,
         colors: None,
         triangles: &s.triangles,
+        custom: &[],
+        overlay: None,
         material: GlbMaterial {
             name: "snow".into(),
             base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
@@ -160,25 +185,52 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
     scene.extend(snow.iter().map(snow_node));
     let scene_glb = mesh_glb(&scene, None);
+    // The displaced surface: grey, whitened by the snow amount f = min(depth / sparse_depth, 1)
+    // (white where the snow is at least `sparse_depth` deep); the flakes go on the overlay.
     let colors: Vec<[f32; 4]> = displaced
         .depth
         .iter()
-        .zip(&coverage)
-        .map(|(&d, &c)| {
-            let s = if d >= p.sparse_depth && d > 0.0 {
-                1.0
-            } else {
-                c.clamp(0.0, 1.0)
-            };
-            let g = 0.55;
-            [
-                g + (SNOW[0] - g) * s,
-                g + (SNOW[1] - g) * s,
-                g + (SNOW[2] - g) * s,
-                1.0,
-            ]
+        .map(|&d| {
+            let s = amount(d, p.sparse_depth);
+            let c = SNOW.map(|w| GROUND + (w - GROUND) * s);
+            [c[0], c[1], c[2], 1.0]
         })
         .collect();
+    let overlay = flake_overlay(
+        &displaced.positions,
+        &displaced.normals,
+        &displaced.triangles,
+        &coverage,
+    );
+    let flakes = RgbaImage {
+        width: FLAKE_TEXTURE_SIZE as u32,
+        height: FLAKE_TEXTURE_SIZE as u32,
+        data: flake_texture(FLAKE_TEXTURE_SIZE, p.seed),
+    };
+    let overlay_node = GlbNode {
+        name: "flakes",
+        positions: &overlay.positions,
+        normals: Some(&overlay.normals),
+        uvs: Some(&overlay.uvs),
+        colors: Some(&overlay.colors),
+        triangles: &overlay.triangles,
+        material: GlbMaterial {
+            name: "snow_flakes".into(),
+            base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
+            roughness: 0.9,
+            alpha_blend: true,
+            double_sided: true,
+            texture_png: Some(encode_rgba(&flakes)),
+            ..GlbMaterial::default()
+        },
+        custom: &[],
+        overlay: None,
+    };
+    let custom: [(&str, &[f32]); 3] = [
+        ("_SNOW_COVERAGE", &coverage),
+        ("_SNOW_DEPTH", &displaced.depth),
+        ("_SNOW_PROBABILITY", &displaced.probability),
+    ];
     let displaced_glb = mesh_glb(
         &[GlbNode {
             name: "displaced",
@@ -192,6 +244,8 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
                 double_sided: true,
                 ..GlbMaterial::default()
             },
+            custom: &custom,
+            overlay: Some(&overlay_node),
         }],
         None,
     );

@@ -173,3 +173,134 @@ pub fn flake_texture(size: usize, seed: u64) -> Vec<u8> {
     }
     out
 }
+
+/// Side of the flake texture written into `displaced.glb`, pixels.
+pub const FLAKE_TEXTURE_SIZE: usize = 256;
+
+/// World size of one tile of the flake texture, metres: 256 px over 25 cm is about 1 mm a pixel,
+/// so the texture's flakes (radii 0.8–2.5 px) are 1.6–5 mm across, the size of real snow flakes.
+/// Fixed in metres (not scaled to the scene), so flakes have a stable world size.
+pub const FLAKE_TILE_M: f32 = 0.25;
+
+/// How far the flake overlay floats above the surface, as a share of the mesh's bounding-box
+/// diagonal (see [`flake_overlay`]).
+pub const FLAKE_LIFT: f32 = 1e-3;
+
+/// The sparse-flake layer of `displaced.glb` (SPEC §2 step 6): a second surface carrying the flake
+/// texture where the coverage is partial, to be drawn alpha-blended over the displaced mesh.
+///
+/// **Our reading of "exported as … a generated flake texture"** (the paper shows the flakes as a
+/// texture on the surface, §2.3(5)): core glTF has no per-vertex blend between two textures, but
+/// its base colour is `baseColorFactor × baseColorTexture × COLOR_0`, alpha included. So the flakes
+/// are a second primitive with `alphaMode: BLEND`, the flake texture (white, its alpha the flakes)
+/// and `COLOR_0 = (1, 1, 1, coverage)`: a flake's opacity is its texel's alpha × the coverage, and
+/// where the coverage is 0 nothing shows.
+///
+/// **Why a lifted shell and not a coplanar copy.** A coplanar overlay relies on the viewer's depth
+/// test passing on equal depths (three.js uses LessEqual; others use Less, and Blender's importer
+/// merges the two primitives into one mesh, where Cycles sees coincident faces) and on both
+/// primitives' vertex shaders giving bit-equal depths, which GLSL does not promise without
+/// `invariant`. glTF has no polygon offset. So the overlay's vertices are the displaced vertices
+/// moved along their smooth unit normal by [`FLAKE_LIFT`] × the bounding-box diagonal (2 mm on a
+/// 2 m table): far above one step of a 24-bit depth buffer at any distance that frames the model
+/// (≈ 1e-4 diagonal with the near plane at a thousandth of the distance), and too small to see.
+///
+/// **UVs** (`TEXCOORD_0`): per triangle, a planar projection along the axis its face normal is
+/// most aligned with (tri-planar by the dominant axis), in metres ÷ [`FLAKE_TILE_M`], so a flake
+/// has the same world size everywhere. Each overlay triangle has its own three vertices (no UV
+/// stretching where the dominant axis changes between neighbouring faces; the seam this leaves
+/// is invisible on a random texture).
+///
+/// Only triangles with coverage > 0 at one of their vertices are kept, in the input order; overlay
+/// vertex `3k + j` is corner `j` of the `k`-th kept triangle and its alpha is that corner's
+/// coverage. Deterministic; `O(triangles)`; allocates the overlay's arrays. Indices out of range
+/// of `positions` panic (caller bug); `coverage` and `normals` must be as long as `positions`.
+pub fn flake_overlay(
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    coverage: &[f32],
+) -> FlakeOverlay {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let diag = (0..3)
+        .map(|k| f64::from(hi[k] - lo[k]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let lift = if diag.is_finite() {
+        (diag * f64::from(FLAKE_LIFT)) as f32
+    } else {
+        0.0
+    };
+    let mut out = FlakeOverlay::default();
+    for t in triangles {
+        let cov = t.map(|i| coverage[i as usize]);
+        if cov.iter().all(|&c| c.is_nan() || c <= 0.0) {
+            continue;
+        }
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let fnorm = [
+            (u[1] * v[2] - u[2] * v[1]).abs(),
+            (u[2] * v[0] - u[0] * v[2]).abs(),
+            (u[0] * v[1] - u[1] * v[0]).abs(),
+        ];
+        // Dominant axis (ties to the lowest index: deterministic); project onto the other two.
+        let axis = if fnorm[0] >= fnorm[1] && fnorm[0] >= fnorm[2] {
+            0
+        } else if fnorm[1] >= fnorm[2] {
+            1
+        } else {
+            2
+        };
+        let (s, r) = match axis {
+            0 => (2, 1),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
+        let base = out.positions.len() as u32;
+        for (j, &i) in t.iter().enumerate() {
+            let p = positions[i as usize];
+            let n = normals[i as usize];
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let n = if l > 1e-20 && l.is_finite() {
+                n.map(|x| x / l)
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            out.positions.push([0, 1, 2].map(|k| p[k] + n[k] * lift));
+            out.normals.push(n);
+            out.uvs.push([p[s] / FLAKE_TILE_M, p[r] / FLAKE_TILE_M]);
+            let alpha = if cov[j].is_nan() {
+                0.0
+            } else {
+                cov[j].clamp(0.0, 1.0)
+            };
+            out.colors.push([1.0, 1.0, 1.0, alpha]);
+        }
+        out.triangles.push([base, base + 1, base + 2]);
+    }
+    out
+}
+
+/// The arrays of [`flake_overlay`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FlakeOverlay {
+    /// Vertices lifted off the surface, metres; three per triangle.
+    pub positions: Vec<[f32; 3]>,
+    /// The surface's smooth unit normals at those vertices.
+    pub normals: Vec<[f32; 3]>,
+    /// Flake-texture coordinates (tiles).
+    pub uvs: Vec<[f32; 2]>,
+    /// `(1, 1, 1, coverage)`.
+    pub colors: Vec<[f32; 4]>,
+    /// `[3k, 3k + 1, 3k + 2]`.
+    pub triangles: Vec<[u32; 3]>,
+}

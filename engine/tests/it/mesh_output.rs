@@ -78,6 +78,8 @@ fn glb_textured_cube_is_valid() {
         uvs: Some(&uv),
         colors: None,
         triangles: &t,
+        custom: &[],
+        overlay: None,
         material: GlbMaterial {
             name: "glass".into(),
             base_color: [1.0, 1.0, 1.0, 0.5],
@@ -195,6 +197,8 @@ fn glb_vertex_colours_are_valid() {
         uvs: None,
         colors: Some(&colors),
         triangles: &t,
+        custom: &[],
+        overlay: None,
         material: GlbMaterial::default(),
     };
     let glb = mesh_glb(&[node], None);

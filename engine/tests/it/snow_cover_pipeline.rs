@@ -146,3 +146,186 @@ fn golden_renders_of_real_meshes() {
         );
     }
 }
+
+/// The JSON chunk and the BIN chunk of a GLB.
+fn glb_chunks(glb: &[u8]) -> (Value, &[u8]) {
+    let len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let doc: Value = serde_json::from_slice(&glb[20..20 + len]).unwrap();
+    let bin = &glb[20 + len + 8..];
+    (doc, bin)
+}
+
+/// The bytes of bufferView `v`.
+fn view<'a>(doc: &Value, bin: &'a [u8], v: u64) -> &'a [u8] {
+    let bv = &doc["bufferViews"][v as usize];
+    let off = bv["byteOffset"].as_u64().unwrap() as usize;
+    &bin[off..off + bv["byteLength"].as_u64().unwrap() as usize]
+}
+
+/// The float accessor `a` as rows of its component count.
+fn floats(doc: &Value, bin: &[u8], a: &Value) -> Vec<Vec<f32>> {
+    let acc = &doc["accessors"][a.as_u64().unwrap() as usize];
+    assert_eq!(acc["componentType"], json!(5126));
+    let k = match acc["type"].as_str().unwrap() {
+        "SCALAR" => 1,
+        "VEC2" => 2,
+        "VEC3" => 3,
+        "VEC4" => 4,
+        t => panic!("{t}"),
+    };
+    let bytes = view(doc, bin, acc["bufferView"].as_u64().unwrap());
+    let all: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    assert_eq!(all.len(), acc["count"].as_u64().unwrap() as usize * k);
+    all.chunks(k).map(<[f32]>::to_vec).collect()
+}
+
+/// SPEC §2 step 6 in `displaced.glb`: the coverage is a per-vertex attribute equal to the
+/// coverage recomputed from the file's own displaced surface and depths; the flake texture is the
+/// generated one; the overlay's alpha is the coverage of its corners, its UVs finite; the flakes
+/// show where the coverage is partial. (The validator runs in `table_outputs_balance_and_validate`.)
+#[test]
+fn displaced_glb_carries_coverage_and_flake_texture() {
+    use phenomena_engine::formats::png_write::encode_rgba;
+    use phenomena_engine::snow_cover::sparse::{
+        flake_texture, vertex_coverage, FLAKE_TEXTURE_SIZE,
+    };
+    let sparse_depth = 0.01;
+    let mut p = small();
+    p["seed"] = json!(5);
+    p["sparse_depth"] = json!(sparse_depth);
+    let outs = pipeline::run(&job("inventor_table.glb", p), &NoControl).unwrap();
+    let (doc, bin) = glb_chunks(output(&outs, "displaced.glb"));
+    let prims = doc["meshes"][0]["primitives"].as_array().unwrap();
+    assert_eq!(prims.len(), 2, "surface + flake overlay");
+    let (base, over) = (&prims[0]["attributes"], &prims[1]["attributes"]);
+
+    let pos: Vec<[f32; 3]> = floats(&doc, bin, &base["POSITION"])
+        .iter()
+        .map(|v| [v[0], v[1], v[2]])
+        .collect();
+    let idx_acc = &doc["accessors"][prims[0]["indices"].as_u64().unwrap() as usize];
+    let idx: Vec<u32> = view(&doc, bin, idx_acc["bufferView"].as_u64().unwrap())
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let tris: Vec<[u32; 3]> = idx.chunks(3).map(|t| [t[0], t[1], t[2]]).collect();
+    let cov: Vec<f32> = floats(&doc, bin, &base["_SNOW_COVERAGE"])
+        .iter()
+        .map(|v| v[0])
+        .collect();
+    let depth: Vec<f32> = floats(&doc, bin, &base["_SNOW_DEPTH"])
+        .iter()
+        .map(|v| v[0])
+        .collect();
+    assert_eq!(cov.len(), pos.len(), "one coverage per vertex");
+    assert_eq!(depth.len(), pos.len(), "one depth per vertex");
+    assert_eq!(
+        cov,
+        vertex_coverage(&pos, &tris, &depth, [0.0, -1.0, 0.0], sparse_depth),
+        "the attribute is the pipeline's coverage"
+    );
+    let partial = cov.iter().filter(|&&c| c > 0.0 && c < 1.0).count();
+    assert!(partial > 0, "the table has partial coverage somewhere");
+    assert!(cov.iter().all(|c| (0.0..=1.0).contains(c)));
+
+    // The overlay: one triangle per surface triangle with coverage, its corners' alpha the
+    // coverage, UVs finite, positions near (not on) the surface's.
+    let kept: Vec<&[u32; 3]> = tris
+        .iter()
+        .filter(|t| t.iter().any(|&i| cov[i as usize] > 0.0))
+        .collect();
+    let colors = floats(&doc, bin, &over["COLOR_0"]);
+    let uvs = floats(&doc, bin, &over["TEXCOORD_0"]);
+    let opos = floats(&doc, bin, &over["POSITION"]);
+    assert_eq!(colors.len(), kept.len() * 3);
+    assert!(uvs.iter().flatten().all(|x| x.is_finite()));
+    let (lo, hi) = (
+        doc["accessors"][base["POSITION"].as_u64().unwrap() as usize]["min"].clone(),
+        doc["accessors"][base["POSITION"].as_u64().unwrap() as usize]["max"].clone(),
+    );
+    let diag = (0..3)
+        .map(|k| (hi[k].as_f64().unwrap() - lo[k].as_f64().unwrap()).powi(2))
+        .sum::<f64>()
+        .sqrt() as f32;
+    for (k, t) in kept.iter().enumerate() {
+        for (j, &i) in t.iter().enumerate() {
+            assert_eq!(colors[3 * k + j][3], cov[i as usize]);
+            assert_eq!(&colors[3 * k + j][..3], &[1.0, 1.0, 1.0]);
+            let q = &opos[3 * k + j];
+            let d = (0..3)
+                .map(|c| (q[c] - pos[i as usize][c]).powi(2))
+                .sum::<f32>()
+                .sqrt();
+            assert!(
+                d > 0.0 && d <= 1.01e-3 * diag,
+                "lift {d} of diagonal {diag}"
+            );
+        }
+    }
+    let mat = &doc["materials"][prims[1]["material"].as_u64().unwrap() as usize];
+    assert_eq!(mat["alphaMode"], json!("BLEND"));
+    let tex = mat["pbrMetallicRoughness"]["baseColorTexture"]["index"]
+        .as_u64()
+        .unwrap();
+    assert_eq!(doc["samplers"][0]["wrapS"], json!(10497));
+    assert_eq!(doc["samplers"][0]["wrapT"], json!(10497));
+    let img = doc["textures"][tex as usize]["source"].as_u64().unwrap();
+    let png = view(
+        &doc,
+        bin,
+        doc["images"][img as usize]["bufferView"].as_u64().unwrap(),
+    );
+    let want = flake_texture(FLAKE_TEXTURE_SIZE, 5);
+    let decoded = decode_rgba(png);
+    assert_eq!(
+        (decoded.width as usize, decoded.height as usize),
+        (FLAKE_TEXTURE_SIZE, FLAKE_TEXTURE_SIZE)
+    );
+    assert_eq!(decoded.data, want, "the texture is the flake texture");
+    let mut img = decoded;
+    img.data = want;
+    assert_eq!(png, encode_rgba(&img).as_slice(), "same PNG bytes");
+}
+
+/// With no `up_axis`, the decoder picks the convention each real mesh stands in (the Inventor
+/// scenes are Z-up content in GLB, the Stanford scans Y-up in STL/PLY), and keeps the reader's
+/// default where it already stands (the teapot, the house).
+#[test]
+fn default_up_axis_stands_the_real_meshes_up() {
+    use phenomena_engine::mesh_view::{MeshView, MeshViewDefaults, UpAxisParam, WireMeshView};
+    let l = Limits::default();
+    let decode = |file: &str, up: Option<UpAxisParam>| {
+        let view = MeshView::from_wire(
+            WireMeshView {
+                up_axis: up,
+                ..WireMeshView::default()
+            },
+            MeshViewDefaults::default(),
+            &l,
+        )
+        .unwrap();
+        let path = format!(
+            "{}/../../shared/data/mesh/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        view.decode(&std::fs::read(path).unwrap(), Some(file), &l)
+            .unwrap()
+            .positions
+    };
+    for (file, up) in [
+        ("inventor_table.glb", UpAxisParam::Z),
+        ("inventor_chesschairs.glb", UpAxisParam::Z),
+        ("fzk_haus.glb", UpAxisParam::Y),
+        ("armadillo.stl", UpAxisParam::Y),
+        ("bunny00.ply", UpAxisParam::Y),
+        ("teapot_npm.obj", UpAxisParam::Y),
+    ] {
+        assert!(
+            decode(file, None) == decode(file, Some(up)),
+            "{file}: default up axis should be {up:?}"
+        );
+    }
+}
