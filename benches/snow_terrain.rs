@@ -18,10 +18,6 @@ use phenomena_engine::formats::glb::terrain_glb;
 use phenomena_engine::formats::png_write::encode_rgba;
 use phenomena_engine::geom::Dem;
 use phenomena_engine::pipeline::Limits;
-use phenomena_engine::render::camera::Camera;
-use phenomena_engine::render::terrain::{
-    render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
-};
 use phenomena_engine::snow_terrain::altitude::apply_altitude;
 use phenomena_engine::snow_terrain::colour::albedo;
 use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
@@ -29,7 +25,7 @@ use phenomena_engine::snow_terrain::smooth::smooth_diamond;
 use phenomena_engine::snow_terrain::sun::{apply_sun, Sun};
 use phenomena_engine::snow_terrain::transfer::transfer_grid;
 use phenomena_engine::snow_terrain::tsa::{tangent_sphere_accessibility, TsaGrid};
-use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::snow_terrain::{overview_render, run, Params};
 use phenomena_engine::NoControl;
 
 fn tanzawa() -> Dem {
@@ -73,28 +69,7 @@ fn params(width: u32, height: u32) -> Params {
 
 /// The render of `run` with default parameters (camera and lighting as `run` builds them).
 fn render(dem: &Dem, colour: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::render::RgbaImage {
-    let scene = TerrainScene {
-        width: dem.width,
-        height: dem.height,
-        dx: dem.dx,
-        dy: dem.dy,
-        heights: &dem.heights,
-        albedo: colour,
-    };
-    let accel = TerrainAccel::new(&scene);
-    let (center, radius) = scene.bounding_sphere();
-    let camera = Camera::orbit(
-        center,
-        200.0,
-        30.0,
-        Camera::auto_distance(radius, 40.0),
-        40.0,
-    );
-    let light = Lighting {
-        sun_dir: sun_direction(180.0, 35.0),
-        ..Lighting::default()
-    };
-    render_with(&accel, &camera, &light, w, h, &NoControl, (0.0, 1.0)).expect("not canceled")
+    overview_render(dem, colour, w, h).expect("not canceled")
 }
 
 fn stages(c: &mut Criterion) {

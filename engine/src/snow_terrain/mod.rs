@@ -16,3 +16,42 @@ pub mod tsa;
 
 pub use params::Params;
 pub use run::run;
+
+/// The benchmarks' overview render of `dem` with per-cell `colour`: the default camera (orbit,
+/// azimuth 200°, elevation 30°, 40° field of view, framing the terrain) and sun (azimuth 180°,
+/// elevation 35°) that `run` uses without parameters, `w × h` pixels. Shared by the timing tests
+/// and `benches/snow_terrain.rs` so both measure the same work.
+#[doc(hidden)]
+pub fn overview_render(
+    dem: &crate::geom::Dem,
+    colour: &[[f32; 3]],
+    w: u32,
+    h: u32,
+) -> Result<crate::render::RgbaImage, crate::Canceled> {
+    use crate::render::camera::Camera;
+    use crate::render::terrain::{
+        render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
+    };
+    let scene = TerrainScene {
+        width: dem.width,
+        height: dem.height,
+        dx: dem.dx,
+        dy: dem.dy,
+        heights: &dem.heights,
+        albedo: colour,
+    };
+    let accel = TerrainAccel::new(&scene);
+    let (center, radius) = scene.bounding_sphere();
+    let camera = Camera::orbit(
+        center,
+        200.0,
+        30.0,
+        Camera::auto_distance(radius, 40.0),
+        40.0,
+    );
+    let light = Lighting {
+        sun_dir: sun_direction(180.0, 35.0),
+        ..Lighting::default()
+    };
+    render_with(&accel, &camera, &light, w, h, &crate::NoControl, (0.0, 1.0))
+}

@@ -298,40 +298,16 @@ fn cpu_ms() -> f64 {
 /// each of the four stages (cumulative).
 fn descriptor_render_png(dem: &phenomena_engine::geom::Dem) -> (Vec<u8>, [f64; 4]) {
     use phenomena_engine::formats::png_write::encode_rgba;
-    use phenomena_engine::render::camera::Camera;
-    use phenomena_engine::render::terrain::{
-        render_with, sun_direction, Lighting, TerrainAccel, TerrainScene,
-    };
     use phenomena_engine::snow_terrain::colour::albedo;
     use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
+    use phenomena_engine::snow_terrain::overview_render;
     let t = std::time::Instant::now();
     let ms = || t.elapsed().as_secs_f64() * 1e3;
     let d = compute(dem, &DescriptorParams::default(), &NoControl, (0.0, 1.0)).unwrap();
     let t1 = ms();
     let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
     let t2 = ms();
-    let scene = TerrainScene {
-        width: dem.width,
-        height: dem.height,
-        dx: dem.dx,
-        dy: dem.dy,
-        heights: &dem.heights,
-        albedo: &colour,
-    };
-    let accel = TerrainAccel::new(&scene);
-    let (center, radius) = scene.bounding_sphere();
-    let camera = Camera::orbit(
-        center,
-        200.0,
-        30.0,
-        Camera::auto_distance(radius, 40.0),
-        40.0,
-    );
-    let light = Lighting {
-        sun_dir: sun_direction(180.0, 35.0),
-        ..Lighting::default()
-    };
-    let img = render_with(&accel, &camera, &light, 1920, 1080, &NoControl, (0.0, 1.0)).unwrap();
+    let img = overview_render(dem, &colour, 1920, 1080).unwrap();
     let t3 = ms();
     let png = encode_rgba(&img);
     (png, [t1, t2, t3, ms()])
