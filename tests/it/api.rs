@@ -228,6 +228,37 @@ async fn cancel_running_and_queued_jobs() {
     assert_ne!(again["id"], b["id"]);
 }
 
+/// What the upload's schema refuses, the server refuses with a problem (the conformance run's
+/// negative-data check is off for this operation: see tests/conformance/schemathesis.toml).
+#[tokio::test]
+async fn asset_uploads_refuse_what_the_schema_refuses() {
+    let s = start(|_| {}).await;
+    let url = s.url("/v1/assets");
+    let long = format!("{}?filename={}", url, "a".repeat(256));
+    let part = |name: &str, bytes: &[u8]| {
+        reqwest::multipart::Form::new().part(
+            name.to_string(),
+            reqwest::multipart::Part::bytes(bytes.to_vec()).file_name("f.bin"),
+        )
+    };
+    let cases = vec![
+        ("empty body", s.client.post(&url).body(Vec::<u8>::new())),
+        ("no file part", s.client.post(&url).multipart(part("data", b"x"))),
+        ("empty file part", s.client.post(&url).multipart(part("file", b""))),
+        ("filename over 255 characters", s.client.post(&long).body("x")),
+    ];
+    for (what, req) in cases {
+        let resp = req.send().await.unwrap();
+        let status = resp.status().as_u16();
+        assert!((400..500).contains(&status), "{what}: {status}");
+        assert_eq!(
+            resp.headers()["content-type"].to_str().unwrap(),
+            "application/problem+json",
+            "{what}"
+        );
+    }
+}
+
 #[tokio::test]
 async fn assets_upload_once_and_jobs_name_them() {
     let s = start(|_| {}).await;
