@@ -101,14 +101,10 @@ pub fn support_share(points: impl Iterator<Item = [f32; 3]> + Clone) -> f64 {
         (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
     };
     let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * low.len());
-    for pass in 0..2 {
+    let reversed: Vec<[f64; 2]> = low.iter().rev().copied().collect();
+    for chain in [&low, &reversed] {
         let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
-            Box::new(low.iter())
-        } else {
-            Box::new(low.iter().rev())
-        };
-        for &p in iter {
+        for &p in chain.iter() {
             while hull.len() >= start + 2
                 && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
             {
@@ -193,10 +189,8 @@ impl MeshView {
             up_axis: up,
         };
         let mut mesh = decode_mesh(bytes, filename, &opts)?;
-        let gltf = matches!(
-            sniff_mesh(bytes, filename),
-            Some(MeshFormat::Gltf | MeshFormat::Glb)
-        );
+        let format = sniff_mesh(bytes, filename);
+        let gltf = matches!(format, Some(MeshFormat::Gltf | MeshFormat::Glb));
         // Z-up → Y-up: (x, y, z) → (x, z, −y), and back; proper rotations (winding kept).
         let z_to_y: fn([f32; 3]) -> [f32; 3] = |v| [v[0], v[2], -v[1]];
         let y_from_z: fn([f32; 3]) -> [f32; 3] = |v| [v[0], -v[2], v[1]];
@@ -214,10 +208,7 @@ impl MeshView {
         }
         if up.is_none() {
             // The other convention than the reader's default (glTF, OBJ: Y-up; STL, PLY: Z-up).
-            let other = if matches!(
-                sniff_mesh(bytes, filename),
-                Some(MeshFormat::Stl | MeshFormat::Ply)
-            ) {
+            let other = if matches!(format, Some(MeshFormat::Stl | MeshFormat::Ply)) {
                 y_from_z
             } else {
                 z_to_y

@@ -33,19 +33,24 @@ pub struct Mesh {
     pub parts: Vec<MeshPart>,
 }
 
+/// Axis-aligned bounds (min, max) of `points`; `None` when there are none.
+pub fn bounds_of(points: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
+    let mut it = points.iter();
+    let first = *it.next()?;
+    let (mut lo, mut hi) = (first, first);
+    for p in it {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    Some((lo, hi))
+}
+
 impl Mesh {
     /// Axis-aligned bounds (min, max); `None` for an empty mesh.
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
-        let mut it = self.positions.iter();
-        let first = *it.next()?;
-        let (mut lo, mut hi) = (first, first);
-        for p in it {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        Some((lo, hi))
+        bounds_of(&self.positions)
     }
 
     /// The three corners of triangle `t`.

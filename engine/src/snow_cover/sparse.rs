@@ -33,6 +33,9 @@
 //! The texture: white flakes (RGB 255, straight alpha) of random radius at random points on a torus,
 //! so that the image tiles; seeded SplitMix64, deterministic. Cost: `O(size² + flakes · r²)`.
 
+use crate::geom::mesh::bounds_of;
+use crate::geom::unit as unit_vector;
+
 /// Sparse-flake coverage from the two angles (degrees) and the snow amount (module doc).
 /// `ground_deg` ∈ [0, 180] (clamped), `incidence_deg` ∈ [−90, 90] (clamped), `depth` and
 /// `sparse_depth` in metres (`sparse_depth ≤ 0`: no thin-snow regime).
@@ -221,18 +224,12 @@ pub fn flake_overlay(
     triangles: &[[u32; 3]],
     coverage: &[f32],
 ) -> FlakeOverlay {
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for p in positions {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    let diag = (0..3)
-        .map(|k| f64::from(hi[k] - lo[k]).powi(2))
-        .sum::<f64>()
-        .sqrt();
+    let diag = bounds_of(positions).map_or(0.0, |(lo, hi)| {
+        (0..3)
+            .map(|k| f64::from(hi[k] - lo[k]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    });
     let lift = if diag.is_finite() {
         (diag * f64::from(FLAKE_LIFT)) as f32
     } else {
@@ -268,12 +265,9 @@ pub fn flake_overlay(
         let base = out.positions.len() as u32;
         for (j, &i) in t.iter().enumerate() {
             let p = positions[i as usize];
-            let n = normals[i as usize];
-            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let n = if l > 1e-20 && l.is_finite() {
-                n.map(|x| x / l)
-            } else {
-                [0.0, 1.0, 0.0]
+            let n = match unit_vector(normals[i as usize]) {
+                [0.0, 0.0, 0.0] => [0.0, 1.0, 0.0],
+                n => n,
             };
             out.positions.push([0, 1, 2].map(|k| p[k] + n[k] * lift));
             out.normals.push(n);

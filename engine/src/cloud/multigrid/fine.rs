@@ -120,18 +120,16 @@ pub(super) fn fine_level(
     let free = |i: usize| reached[i] && pin_at[i] == NONE;
     let red = |i: usize| (i % nx + (i / nx) % ny + i / (nx * ny)) % 2 == 0;
     // Red unknowns, then black ones, each in grid order.
-    let mut voxel: Vec<u32> = Vec::new();
-    for colour in [true, false] {
-        let part: Vec<u32> = (0..n)
+    let of_colour = |colour: bool| -> Vec<u32> {
+        (0..n)
             .into_par_iter()
             .filter(|&i| free(i) && red(i) == colour)
             .map(|i| i as u32)
-            .collect();
-        voxel.extend(part);
-    }
-    let red_count = (0..voxel.len())
-        .find(|&u| !red(voxel[u] as usize))
-        .unwrap_or(voxel.len());
+            .collect()
+    };
+    let mut voxel = of_colour(true);
+    let red_count = voxel.len();
+    voxel.extend(of_colour(false));
     let mut index = vec![NONE; n];
     for (u, &i) in voxel.iter().enumerate() {
         index[i as usize] = u as u32;
