@@ -7,7 +7,13 @@
 //! *depth group*. A group is a **snow-possible surface** — a layer at that cell — when it contains
 //! an upward-facing fragment (unit normal `n_y > 0.05`, i.e. slopes below ~87°) and nothing else:
 //! a downward or near-vertical fragment in the same group means the surface is covered by solid
-//! (the floor under a closed box standing on it), so no snow rests there. Its base is the group's
+//! (the floor under a closed box standing on it), so no snow rests there. **Winding**: real files
+//! hold open surfaces wound either way (the floor of `inventor_chesschairs.glb` faces down), so the
+//! peeling counts, from the sky down, the solids a column has entered (an upward group) and left
+//! (a downward group); a group of only downward fragments met *outside* every solid is an open
+//! surface wound the other way and is snow-possible too, with its normal turned up. A closed
+//! solid's underside always comes after its top in the column, so it is never mistaken for one.
+//! Its base is the group's
 //! highest upward fragment, its ceiling the lowest fragment of the group above (`+∞` under open
 //! sky). At most [`MAX_LAYERS`] layers per cell are kept (the deepest are dropped). Layers are
 //! indexed per cell from the top (see [`super::maps`]), so a table top and the floor under it are
@@ -60,8 +66,8 @@ struct Fragment {
 
 /// Per-cell result of the peeling: the snow layers from the top and the column's top.
 struct BandOut {
-    /// Per cell of the band: up to MAX_LAYERS (base, ceiling, triangle).
-    layers: Vec<Vec<(f32, f32, u32)>>,
+    /// Per cell of the band: up to MAX_LAYERS (base, ceiling, triangle, wound downward).
+    layers: Vec<Vec<(f32, f32, u32, bool)>>,
     /// Per cell: highest fragment (NaN = empty column).
     top: Vec<f32>,
 }
@@ -173,9 +179,10 @@ pub fn build_snow_maps(
         for (k, cell_layers) in out.layers.iter().enumerate() {
             let c = c0 + k;
             top[c] = out.top[k];
-            for (l, &(base, ceiling, tri)) in cell_layers.iter().enumerate() {
+            for (l, &(base, ceiling, tri, flipped)) in cell_layers.iter().enumerate() {
                 let nrm = mesh.face_normal(tri as usize);
                 let len = (nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]).sqrt();
+                let len = if flipped { -len } else { len };
                 let layer = &mut layers[l];
                 layer.base[c] = base;
                 layer.ceiling[c] = ceiling;
@@ -274,7 +281,7 @@ fn peel_band(
             .then(b.h.total_cmp(&a.h))
             .then(a.tri.cmp(&b.tri))
     });
-    let mut layers: Vec<Vec<(f32, f32, u32)>> = vec![Vec::new(); ncell];
+    let mut layers: Vec<Vec<(f32, f32, u32, bool)>> = vec![Vec::new(); ncell];
     let mut top = vec![f32::NAN; ncell];
     let mut k = 0;
     while k < frags.len() {
@@ -285,26 +292,43 @@ fn peel_band(
         }
         top[c] = frags[k].h;
         let mut ceiling = f32::INFINITY;
+        // Solids entered minus left, counting from the sky down (module doc: winding).
+        let mut inside = 0u32;
         let mut g = k;
         while g < end {
             let g_top = frags[g].h;
             let mut up: Option<(f32, u32)> = None;
-            let mut other = false;
+            let mut down: Option<(f32, u32)> = None;
+            let mut vertical = false;
             let mut g_end = g;
             while g_end < end && frags[g_end].h >= g_top - eps {
                 let f = frags[g_end];
-                if unit_ny[f.tri as usize] > UP_FACING_MIN_NY {
-                    if up.is_none() {
-                        up = Some((f.h, f.tri));
-                    }
+                let ny = unit_ny[f.tri as usize];
+                if ny > UP_FACING_MIN_NY {
+                    up = up.or(Some((f.h, f.tri)));
+                } else if ny < -UP_FACING_MIN_NY {
+                    down = down.or(Some((f.h, f.tri)));
                 } else {
-                    other = true;
+                    vertical = true;
                 }
                 g_end += 1;
             }
-            if let (Some((h, tri)), false) = (up, other) {
+            let surface = match (up, down, vertical) {
+                (Some((h, tri)), None, false) => {
+                    inside += 1;
+                    Some((h, tri, false))
+                }
+                (None, Some(_), _) if inside > 0 => {
+                    inside -= 1;
+                    None
+                }
+                // Facing down with no solid above it: an open surface wound the other way.
+                (None, Some((h, tri)), false) => Some((h, tri, true)),
+                _ => None,
+            };
+            if let Some(s) = surface {
                 if layers[c].len() < MAX_LAYERS {
-                    layers[c].push((h, ceiling, tri));
+                    layers[c].push((s.0, ceiling, s.1, s.2));
                 }
             }
             ceiling = frags[g_end - 1].h;

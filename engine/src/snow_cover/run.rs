@@ -115,7 +115,10 @@ fn snow_node(s: &SnowMesh) -> GlbNode<'_> {
 /// Runs the pipeline on a decoded scene.
 pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
-    let model = p.model();
+    let scene_height = mesh
+        .bounds()
+        .map_or(0.0, |(lo, hi)| f64::from(hi[1] - lo[1]));
+    let model = p.model(scene_height);
     // Time-lapse frames: rendered inside the simulation at the steps that end each 1/frames of it.
     let (fw, fh) = ((p.view.width / 2).max(16), (p.view.height / 2).max(16));
     let mut frames: Vec<RgbaImage> = Vec::new();
@@ -264,6 +267,11 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
             "triangles": mesh.triangles.len(),
             "parts": mesh.parts.len(),
             "bounds": mesh.bounds().map(|(lo, hi)| [lo, hi]),
+        },
+        "snowfall": {
+            "total_m": model.snowfall.cumulative(model.duration_h),
+            "scaled_to_scene": p.snowfall.is_none()
+                && model.snowfall != super::snowfall::Snowfall::Constant(super::snowfall::DEFAULT_RATE_M_PER_H),
         },
         "maps": {
             "nx": maps.nx,

@@ -47,7 +47,7 @@
 use std::collections::HashMap;
 
 use super::maps::{opposite, SnowMaps, NEIGHBOURS};
-use super::region::{STEP_SLOPE_DEG, UP_FACING_MIN_NY};
+use super::region::{DEPTH_EPS_REL, STEP_SLOPE_DEG, UP_FACING_MIN_NY};
 use crate::geom::mesh::Mesh;
 
 /// Snow thinner than this (metres) gets no snow mesh (it is sparse snow). 1 mm.
@@ -363,7 +363,7 @@ pub fn layer_at(maps: &SnowMaps, p: [f32; 3]) -> Option<(usize, usize)> {
     let fj = ((p[2] - maps.origin[1]) / maps.cell).floor();
     let ci = (fi.max(0.0) as usize).min(maps.nx - 1);
     let cj = (fj.max(0.0) as usize).min(maps.nz - 1);
-    let above = maps.extent * super::region::DEPTH_EPS_REL + 1e-5;
+    let above = on_surface_eps(maps);
     let below = maps.cell * STEP_SLOPE_DEG.to_radians().tan() + above;
     let search = |i: usize, j: usize| -> Option<(f32, usize, usize)> {
         let c = j * maps.nx + i;
@@ -399,6 +399,12 @@ pub fn layer_at(maps: &SnowMaps, p: [f32; 3]) -> Option<(usize, usize)> {
         }
     }
     best.map(|b| (b.1, b.2))
+}
+
+/// How far (metres) a point may lie above a layer's base and still be on it: the peeling's depth
+/// epsilon plus 10 µm of float slack.
+fn on_surface_eps(maps: &SnowMaps) -> f32 {
+    maps.extent * DEPTH_EPS_REL + 1e-5
 }
 
 /// Subdivide in place by edge midpoints until no edge is longer than `max_len` metres, in passes:
@@ -517,22 +523,30 @@ pub fn displace(mesh: &Mesh, maps: &SnowMaps, max_edge_length: Option<f32>) -> D
     let nv = positions.len();
     let mut p_acc = vec![(0.0f64, 0.0f64); nv]; // (Σ area·P, Σ area)
     let mut up = vec![false; nv];
+    let eps = on_surface_eps(maps);
     for &t in &triangles {
         let n = face_cross(&positions, t);
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         let area = 0.5 * len;
-        let facing_up = len > 0.0 && n[1] / len > f64::from(UP_FACING_MIN_NY);
-        let prob = if facing_up {
-            let [a, b, c] = t.map(|i| positions[i as usize]);
-            let g = [
-                (a[0] + b[0] + c[0]) / 3.0,
-                (a[1] + b[1] + c[1]) / 3.0,
-                (a[2] + b[2] + c[2]) / 3.0,
-            ];
-            layer_at(maps, g).map_or(0.0, |(cell, k)| maps.layers[k].probability[cell])
+        let ny = if len > 0.0 { n[1] / len } else { 0.0 };
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        let g = [
+            (a[0] + b[0] + c[0]) / 3.0,
+            (a[1] + b[1] + c[1]) / 3.0,
+            (a[2] + b[2] + c[2]) / 3.0,
+        ];
+        let min_ny = f64::from(UP_FACING_MIN_NY);
+        let layer = if ny > min_ny {
+            layer_at(maps, g)
+        } else if ny < -min_ny {
+            // An open surface wound downward is a layer of its own (see `super::region`): the
+            // triangle counts when a layer's base lies on it.
+            layer_at(maps, g).filter(|&(cell, k)| (maps.layers[k].base[cell] - g[1]).abs() <= eps)
         } else {
-            0.0
+            None
         };
+        let facing_up = ny > min_ny || layer.is_some();
+        let prob = layer.map_or(0.0, |(cell, k)| maps.layers[k].probability[cell]);
         for &v in &t {
             let acc = &mut p_acc[v as usize];
             acc.0 += area * f64::from(prob);

@@ -55,6 +55,10 @@ impl Snowfall {
     }
 }
 
+/// The default snowfall rate, m/h: 12 h of it (the default `duration_h`) is 0.24 m, a heavy
+/// day's snow on open ground.
+pub const DEFAULT_RATE_M_PER_H: f64 = 0.02;
+
 /// Everything the model (SPEC §2 steps 1–5) needs. See [`ModelParams::default`] for defaults.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelParams {
@@ -93,7 +97,7 @@ impl Default for ModelParams {
             wind: None,
             angle_weighting: false,
             seed: 0,
-            snowfall: Snowfall::Constant(0.02),
+            snowfall: Snowfall::Constant(DEFAULT_RATE_M_PER_H),
             duration_h: 12.0,
             steps: 48,
             reproject_every: 0,

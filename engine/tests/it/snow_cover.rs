@@ -100,6 +100,48 @@ fn table_and_floor_become_two_connected_layers() {
 }
 
 #[test]
+fn an_open_floor_wound_downward_takes_snow_like_one_wound_upward() {
+    // The floor of `inventor_chesschairs.glb` faces down; the table's closed slab and legs are
+    // wound outward. The peeling must give the same layers either way, with normals turned up.
+    let build = |floor_out: [f32; 3]| {
+        let mut b = Builder::default();
+        b.quad(
+            [
+                [0.0, 0.0, 0.0],
+                [10.0, 0.0, 0.0],
+                [10.0, 0.0, 10.0],
+                [0.0, 0.0, 10.0],
+            ],
+            floor_out,
+        );
+        b.table([3.0, 7.0], [3.0, 7.0], 1.0);
+        build_snow_maps(&b.build(), 100, &NoControl).unwrap()
+    };
+    let up = build([0.0, 1.0, 0.0]);
+    let down = build([0.0, -1.0, 0.0]);
+    assert_eq!(down.layers.len(), up.layers.len());
+    for (a, b) in up.layers.iter().zip(&down.layers) {
+        assert_eq!(a.links, b.links);
+        for c in 0..a.base.len() {
+            assert_eq!(a.base[c].to_bits(), b.base[c].to_bits(), "cell {c}");
+            assert_eq!(a.ceiling[c].to_bits(), b.ceiling[c].to_bits(), "cell {c}");
+            assert_eq!(a.normal[c], b.normal[c], "cell {c}");
+        }
+    }
+    let (under, outside) = (cell_of(&down, 5.0, 5.0), cell_of(&down, 1.0, 1.0));
+    assert_eq!(layer_at(&down, outside, 0.0), Some(0));
+    assert_eq!(layer_at(&down, under, 0.0), Some(1));
+    // The closed slab's underside (facing down, below its top) stays no surface, and so does the
+    // floor under a leg, downward floor or not.
+    assert_eq!(layer_at(&down, under, 0.95), None);
+    let leg = cell_of(&down, 3.05, 3.05);
+    assert!(down
+        .layers
+        .iter()
+        .all(|l| l.base[leg].is_nan() || l.base[leg] > 0.5));
+}
+
+#[test]
 fn a_block_standing_on_the_floor_is_a_wall() {
     let mut b = Builder::default();
     b.floor(10.0);
