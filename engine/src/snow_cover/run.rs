@@ -12,7 +12,7 @@
 //!    value per vertex, for tools that read them;
 //! 2. the sparse flakes: [`flake_overlay`]'s shell lifted a thousandth of the diagonal off the
 //!    surface, `alphaMode: BLEND`, the generated [`flake_texture`] (256², seeded by `seed`, PNG in a
-//!    bufferView, REPEAT) through tri-planar `TEXCOORD_0` at 25 cm a tile, and `COLOR_0` alpha =
+//!    bufferView, REPEAT) through tri-planar `TEXCOORD_0` at an eighth of the diagonal a tile, and `COLOR_0` alpha =
 //!    the coverage, so core glTF's `factor × texture × COLOR_0` shows flakes only where the
 //!    coverage is partial (see [`flake_overlay`] for why a lifted shell and not a coplanar copy).
 

@@ -180,10 +180,16 @@ pub fn flake_texture(size: usize, seed: u64) -> Vec<u8> {
 /// Side of the flake texture written into `displaced.glb`, pixels.
 pub const FLAKE_TEXTURE_SIZE: usize = 256;
 
-/// World size of one tile of the flake texture, metres: 256 px over 25 cm is about 1 mm a pixel,
-/// so the texture's flakes (radii 0.8–2.5 px) are 1.6–5 mm across, the size of real snow flakes.
-/// Fixed in metres (not scaled to the scene), so flakes have a stable world size.
-pub const FLAKE_TILE_M: f32 = 0.25;
+/// Tiles of the flake texture across the mesh's bounding-box diagonal: one tile is a eighth of
+/// the diagonal, 25 cm on the 2.1 m Inventor table (256 px over 25 cm: ≈ 1 mm a pixel, flakes
+/// 1.6–5 mm across, the size of real flakes).
+///
+/// Scaled to the scene, not fixed in metres, because meshes come in unknown units (as for the
+/// default snowfall, [`super::params::default_rate`]): at a fixed 25 cm the 41-unit teapot had
+/// 160 tiles across and its flakes were a sub-pixel grain in three.js at the framing of the whole
+/// model; a share of the diagonal gives flakes the same size relative to the model, so the same
+/// size on screen in any viewer that frames the model.
+pub const FLAKE_TILES_PER_DIAGONAL: f64 = 8.0;
 
 /// How far the flake overlay floats above the surface, as a share of the mesh's bounding-box
 /// diagonal (see [`flake_overlay`]).
@@ -209,8 +215,8 @@ pub const FLAKE_LIFT: f32 = 1e-3;
 /// (≈ 1e-4 diagonal with the near plane at a thousandth of the distance), and too small to see.
 ///
 /// **UVs** (`TEXCOORD_0`): per triangle, a planar projection along the axis its face normal is
-/// most aligned with (tri-planar by the dominant axis), in metres ÷ [`FLAKE_TILE_M`], so a flake
-/// has the same world size everywhere. Each overlay triangle has its own three vertices (no UV
+/// most aligned with (tri-planar by the dominant axis), in units of one tile (the diagonal ÷
+/// [`FLAKE_TILES_PER_DIAGONAL`]), so a flake has the same size everywhere on the model. Each overlay triangle has its own three vertices (no UV
 /// stretching where the dominant axis changes between neighbouring faces; the seam this leaves
 /// is invisible on a random texture).
 ///
@@ -230,10 +236,13 @@ pub fn flake_overlay(
             .sum::<f64>()
             .sqrt()
     });
-    let lift = if diag.is_finite() {
-        (diag * f64::from(FLAKE_LIFT)) as f32
+    let (lift, per_tile) = if diag.is_finite() && diag > 0.0 {
+        (
+            (diag * f64::from(FLAKE_LIFT)) as f32,
+            (FLAKE_TILES_PER_DIAGONAL / diag) as f32,
+        )
     } else {
-        0.0
+        (0.0, 1.0)
     };
     let mut out = FlakeOverlay::default();
     for t in triangles {
@@ -271,7 +280,7 @@ pub fn flake_overlay(
             };
             out.positions.push([0, 1, 2].map(|k| p[k] + n[k] * lift));
             out.normals.push(n);
-            out.uvs.push([p[s] / FLAKE_TILE_M, p[r] / FLAKE_TILE_M]);
+            out.uvs.push([p[s] * per_tile, p[r] * per_tile]);
             let alpha = if cov[j].is_nan() {
                 0.0
             } else {

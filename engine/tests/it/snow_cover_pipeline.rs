@@ -263,6 +263,16 @@ fn displaced_glb_carries_coverage_and_flake_texture() {
                 d > 0.0 && d <= 1.01e-3 * diag,
                 "lift {d} of diagonal {diag}"
             );
+            // UVs: the corner projected on two axes, in tiles of an eighth of the diagonal.
+            let p = pos[i as usize].map(|x| x * 8.0 / diag);
+            let uv = &uvs[3 * k + j];
+            assert!(
+                [(2, 1), (0, 2), (0, 1)].iter().any(|&(a, b)| {
+                    (uv[0] - p[a]).abs() <= 1e-4 * (1.0 + p[a].abs())
+                        && (uv[1] - p[b]).abs() <= 1e-4 * (1.0 + p[b].abs())
+                }),
+                "uv {uv:?} of corner {p:?} (tiles)"
+            );
         }
     }
     let mat = &doc["materials"][prims[1]["material"].as_u64().unwrap() as usize];
