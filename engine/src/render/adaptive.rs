@@ -19,7 +19,7 @@
 //!    marked pixels of the visibility buffer are cleared);
 //! 5. shade the pattern samples of marked pixels and write the band.
 //!
-//! The band body ([`band`]: steps 2, 3 and 5 with the shader inlined; the coverage of steps 1
+//! The band body (`band`: steps 2, 3 and 5 with the shader inlined; the coverage of steps 1
 //! and 4 is [`Rasterizer`]'s) is compiled for AVX2 too and chosen at run time: no FMA target,
 //! so the same bits (−2 % instructions and ≈ −2 % CPU on the paper case, `BENCHMARKS.md`).
 //! Rejected: the same for the coverage loop (`Rasterizer::raster_rows`): +3 % CPU.
