@@ -430,7 +430,8 @@ fn scaling() {
 /// Paper case: `run` (descriptor, colour, render, every default output) on Tanzawa cropped to
 /// 400×200 at 900×600; 4096²: descriptor + colour + 1920×1080 render + PNG as the bench's
 /// `descriptor_render_png_4096` (`SNOW_TIMINGS_4096=0` skips it). Prints the median wall time,
-/// the mean process CPU per run and the median of each report stage.
+/// the mean process CPU per run and the median of each report stage. `SNOW_TIMINGS_FULL=0` times
+/// the image-only case alone, `SNOW_TIMINGS_PNG=path` writes its `render.png` there.
 #[test]
 #[ignore]
 fn timings() {
@@ -448,8 +449,14 @@ fn timings() {
         .max(1);
     let mut walls = Vec::new();
     let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
+    // SNOW_TIMINGS_FULL=0: the image-only case alone (A/B runs of the render).
+    let full_reps = if std::env::var("SNOW_TIMINGS_FULL").is_ok_and(|v| v == "0") {
+        0
+    } else {
+        reps
+    };
     let c0 = cpu_ms();
-    for _ in 0..reps {
+    for _ in 0..full_reps {
         let t = Instant::now();
         let outs = run(&paper, &p, &NoControl).unwrap();
         walls.push(t.elapsed().as_secs_f64() * 1e3);
@@ -462,16 +469,18 @@ fn timings() {
                 .push(s["ms"].as_f64().unwrap());
         }
     }
-    let cpu = (cpu_ms() - c0) / f64::from(reps);
     let median = |v: &mut Vec<f64>| {
         v.sort_by(|a, b| a.total_cmp(b));
         v[v.len() / 2]
     };
-    println!(
-        "paper 400x200 -> 900x600, run(): median {:.1} ms wall, min {:.1}, {cpu:.1} ms cpu/run",
-        median(&mut walls),
-        walls[0]
-    );
+    if full_reps > 0 {
+        let cpu = (cpu_ms() - c0) / f64::from(full_reps);
+        println!(
+            "paper 400x200 -> 900x600, run(): median {:.1} ms wall, min {:.1}, {cpu:.1} ms cpu/run",
+            median(&mut walls),
+            walls[0]
+        );
+    }
     for (name, v) in &mut stages {
         println!("  {name:<10} {:7.2} ms (median)", median(v));
     }
@@ -485,6 +494,10 @@ fn timings() {
         let outs = run(&paper, &p_img, &NoControl).unwrap();
         walls.push(t.elapsed().as_secs_f64() * 1e3);
         assert_eq!(outs.len(), 2);
+        // SNOW_TIMINGS_PNG=path: keep the picture (byte-for-byte A/B of render changes).
+        if let Some(path) = std::env::var_os("SNOW_TIMINGS_PNG") {
+            std::fs::write(path, output(&outs, "render.png")).unwrap();
+        }
     }
     let cpu = (cpu_ms() - c0) / f64::from(reps);
     println!(
