@@ -11,6 +11,8 @@ use crate::common::Server;
 
 /// Pinned browser driver; installed on first use into `target/browser-node/`.
 const PLAYWRIGHT: &str = "playwright-core@1.65.1";
+/// Pinned three.js, the glTF viewer of the GLB test; installed beside the driver.
+const THREE: &str = "three@0.170.0";
 
 #[tokio::test]
 async fn page_files_are_served_with_their_types() {
@@ -157,15 +159,25 @@ async fn examples_run_through_their_pipelines() {
 
 fn playwright_dir() -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/browser-node");
-    if !dir.join("node_modules/playwright-core").exists() {
+    let have = |pkg: &str| {
+        let (name, version) = pkg.rsplit_once('@').unwrap();
+        std::fs::read_to_string(dir.join("node_modules").join(name).join("package.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+            .is_some_and(|v| v["version"] == version)
+    };
+    // One process at a time: the studio and viewer tests run in parallel.
+    static INSTALL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
+    if !(have(PLAYWRIGHT) && have(THREE)) {
         std::fs::create_dir_all(&dir).unwrap();
         let status = Command::new("npm")
             .args(["install", "--no-audit", "--no-fund", "--silent", "--prefix"])
             .arg(&dir)
-            .arg(PLAYWRIGHT)
+            .args([PLAYWRIGHT, THREE])
             .status()
-            .expect("npm is needed to install playwright-core");
-        assert!(status.success(), "npm install {PLAYWRIGHT} failed");
+            .expect("npm is needed to install playwright-core and three");
+        assert!(status.success(), "npm install {PLAYWRIGHT} {THREE} failed");
     }
     dir
 }
@@ -203,4 +215,72 @@ fn studio_in_headless_chromium() {
     );
     println!("{log}");
     assert!(out.status.success(), "the browser test failed:\n{log}");
+}
+
+/// `displaced.glb` in a real glTF viewer: three.js's `GLTFLoader` in headless Chromium
+/// (`tests/browser/gltf_viewer.mjs`) loads the snow-covered teapot with no error, makes the
+/// surface an opaque vertex-coloured mesh with the `_SNOW_*` attributes and the flake overlay a
+/// transparent textured one, and the overlay shows: drawn over the surface it changes a share of
+/// the model's pixels (the flakes where the coverage is partial, not the whole model: no
+/// z-fighting) and brightens nearly all of those (white flakes on grey). Screenshot:
+/// `target/browser/displaced_flakes.png`. Alone: `cargo test --test it web::displaced_glb`.
+#[test]
+fn displaced_glb_shows_its_flakes_in_three_js() {
+    use phenomena_engine::pipeline::{self, Limits, Params, PipelineKind};
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let pw = playwright_dir();
+    let file = "teapot_npm.obj";
+    let bytes = std::fs::read(root.join("../shared/data/mesh").join(file)).unwrap();
+    let l = Limits::default();
+    let params = json!({"resolution": 128, "directions": 8, "steps": 6, "width": 64, "height": 48});
+    let p = Params::parse(PipelineKind::SnowCover, &params, &l).unwrap();
+    let job = pipeline::decode(p, &bytes, Some(file), &l).unwrap();
+    let outs = pipeline::run(&job, &phenomena_engine::NoControl).unwrap();
+    let glb = &outs.iter().find(|o| o.name == "displaced.glb").unwrap().bytes;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("displaced.glb");
+    std::fs::write(&path, glb).unwrap();
+
+    let out = Command::new("node")
+        .arg(root.join("tests/browser/gltf_viewer.mjs"))
+        .env("GLB", &path)
+        .env("PLAYWRIGHT_DIR", &pw)
+        .env("SCREENSHOT", root.join("target/browser/displaced_flakes.png"))
+        .output()
+        .expect("node is needed for the browser test");
+    let log = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "the viewer failed:\n{log}");
+    let r: Value = serde_json::from_str(log.lines().next().unwrap_or_default())
+        .unwrap_or_else(|e| panic!("{e}: {log}"));
+    assert_eq!(r["problems"], json!([]), "{r}");
+    assert_eq!(r["error"], Value::Null, "{r}");
+    let meshes = r["meshes"].as_array().unwrap();
+    assert_eq!(meshes.len(), 2, "surface + flake overlay: {r}");
+    let (surface, flakes) = (&meshes[0], &meshes[1]);
+    assert_eq!(surface["material"], "displaced");
+    assert_eq!(surface["transparent"], false);
+    assert_eq!(surface["vertexColors"], true);
+    for a in ["_snow_coverage", "_snow_depth", "_snow_probability", "color", "normal"] {
+        assert!(
+            surface["attributes"].as_array().unwrap().contains(&json!(a)),
+            "{a}: {r}"
+        );
+    }
+    assert_eq!(flakes["material"], "snow_flakes");
+    assert_eq!(flakes["transparent"], true);
+    assert_eq!(flakes["texture"], true);
+    assert_eq!(flakes["vertexColors"], true);
+    assert!(flakes["attributes"].as_array().unwrap().contains(&json!("uv")));
+    let n = |k: &str| r[k].as_f64().unwrap();
+    let (model, changed, brighter) = (n("model"), n("changed"), n("brighter"));
+    assert!(model > 0.2 * 640.0 * 480.0, "the camera frames the model: {r}");
+    assert!(
+        changed > 0.005 * model && changed < 0.5 * model,
+        "flakes on part of the model: {r}"
+    );
+    assert!(brighter >= 0.95 * changed, "white flakes on grey: {r}");
 }
