@@ -313,8 +313,10 @@ mod tests {
         let l = Limits::default();
         let p = Params::from_json(&json!({}), &l).unwrap();
         let total = |m: ModelParams| m.snowfall.cumulative(m.duration_h);
-        // A house: a real day's snow, 0.02 m/h × 12 h.
-        assert!((total(p.model(8.0)) - 0.24).abs() < 1e-12);
+        // A 20 m building: a real day's snow, 0.02 m/h × 12 h (the cap is 0.5 m).
+        assert!((total(p.model(20.0)) - 0.24).abs() < 1e-12);
+        // A 7.3 m house: 2.5 % of its height, 0.18 m.
+        assert!((total(p.model(7.3)) - 0.1825).abs() < 1e-12);
         // A 0.99-unit bunny: 2.5 % of its height.
         assert!((total(p.model(0.99)) - 0.02475).abs() < 1e-12);
         // The cap is on the total, whatever the duration.
