@@ -236,7 +236,11 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
     let p = Params::parse(PipelineKind::SnowCover, &params, &l).unwrap();
     let job = pipeline::decode(p, &bytes, Some(file), &l).unwrap();
     let outs = pipeline::run(&job, &phenomena_engine::NoControl).unwrap();
-    let glb = &outs.iter().find(|o| o.name == "displaced.glb").unwrap().bytes;
+    let glb = &outs
+        .iter()
+        .find(|o| o.name == "displaced.glb")
+        .unwrap()
+        .bytes;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("displaced.glb");
     std::fs::write(&path, glb).unwrap();
@@ -245,7 +249,10 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
         .arg(root.join("tests/browser/gltf_viewer.mjs"))
         .env("GLB", &path)
         .env("PLAYWRIGHT_DIR", &pw)
-        .env("SCREENSHOT", root.join("target/browser/displaced_flakes.png"))
+        .env(
+            "SCREENSHOT",
+            root.join("target/browser/displaced_flakes.png"),
+        )
         .output()
         .expect("node is needed for the browser test");
     let log = format!(
@@ -264,9 +271,18 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
     assert_eq!(surface["material"], "displaced");
     assert_eq!(surface["transparent"], false);
     assert_eq!(surface["vertexColors"], true);
-    for a in ["_snow_coverage", "_snow_depth", "_snow_probability", "color", "normal"] {
+    for a in [
+        "_snow_coverage",
+        "_snow_depth",
+        "_snow_probability",
+        "color",
+        "normal",
+    ] {
         assert!(
-            surface["attributes"].as_array().unwrap().contains(&json!(a)),
+            surface["attributes"]
+                .as_array()
+                .unwrap()
+                .contains(&json!(a)),
             "{a}: {r}"
         );
     }
@@ -274,10 +290,16 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
     assert_eq!(flakes["transparent"], true);
     assert_eq!(flakes["texture"], true);
     assert_eq!(flakes["vertexColors"], true);
-    assert!(flakes["attributes"].as_array().unwrap().contains(&json!("uv")));
+    assert!(flakes["attributes"]
+        .as_array()
+        .unwrap()
+        .contains(&json!("uv")));
     let n = |k: &str| r[k].as_f64().unwrap();
     let (model, changed, brighter) = (n("model"), n("changed"), n("brighter"));
-    assert!(model > 0.2 * 640.0 * 480.0, "the camera frames the model: {r}");
+    assert!(
+        model > 0.2 * 640.0 * 480.0,
+        "the camera frames the model: {r}"
+    );
     assert!(
         changed > 0.005 * model && changed < 0.5 * model,
         "flakes on part of the model: {r}"
