@@ -321,7 +321,10 @@ mod tests {
         let long = Params::from_json(&json!({"duration_h": 48}), &l).unwrap();
         assert!((total(long.model(0.99)) - 0.02475).abs() < 1e-12);
         // Degenerate heights fall back to the plain default rather than no snow.
-        assert_eq!(p.model(0.0).snowfall, Snowfall::Constant(DEFAULT_RATE_M_PER_H));
+        assert_eq!(
+            p.model(0.0).snowfall,
+            Snowfall::Constant(DEFAULT_RATE_M_PER_H)
+        );
         // Given explicitly: never scaled.
         let given = Params::from_json(&json!({"snowfall": 0.02}), &l).unwrap();
         assert!((total(given.model(0.99)) - 0.24).abs() < 1e-12);
