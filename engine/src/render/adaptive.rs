@@ -9,8 +9,9 @@
 //! (≈5× the shading cost for the same edges) and an analytic-coverage edge pass (does not match
 //! the ray caster's picture).
 //!
-//! **Per band of [`BAND`] rows** (rayon; a band writes only its own rows, so the bytes do not
-//! depend on the thread count):
+//! **Per band of [`BAND`] rows** (one loop per rayon thread takes the next band from a shared
+//! counter, top to bottom; a band writes only its own rows, so the bytes do not depend on the
+//! thread count or on which thread drew it):
 //! 1. rasterise the *centre* sample of the band's rows plus one apron row above and below;
 //! 2. shade the centres;
 //! 3. mark the pixels to refine (a bit mask per row);
@@ -32,6 +33,9 @@
 //! **Allocation:** per worker thread, the band's visibility buffers (8 B per pixel for the
 //! centre, 8 B per sample of the band for the pattern), the centre samples (`size_of::<P>()` per
 //! pixel) and the mask (1 bit per pixel); nothing per pixel.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -161,6 +165,9 @@ pub(crate) fn write_pixel(px: &mut [u8], sum: [f32; 3], cover: f32, n: f32) {
     }
 }
 
+/// Receives finished rows: `(first row, rows)`, whole rows of straight sRGBA bytes.
+pub type RowSink<'a> = dyn Fn(usize, &[u8]) + Sync + 'a;
+
 /// A sample shader for [`render_adaptive`]: `(fragment or None for the background, x, y, row)`.
 pub type ShadeFn<'a> = dyn Fn(Option<&Fragment>, f64, f64, usize) -> Sample + Sync + 'a;
 
@@ -181,7 +188,7 @@ pub fn render_adaptive(
         let f = id.map(|id| raster.fragment(id, x, y));
         Keyed::of(shade(f.as_ref(), x, y, row))
     };
-    render_adaptive_with(raster, samples, &keyed, ctl, band_done)
+    render_adaptive_with(raster, samples, &keyed, ctl, &|_, _| band_done())
 }
 
 /// [`render_adaptive`] for any shaded-sample type `P`: the refinement test is `P`'s
@@ -193,12 +200,16 @@ pub fn render_adaptive(
 /// `shade` is a type parameter rather than a `dyn Fn` so that it inlines into the sample loops:
 /// through a vtable every sample paid an indirect call and returned its `P` through memory
 /// (the paper case shades ~0.9 M samples per image).
+///
+/// `band_done(first_row, rows)` gets each finished band's rows (`4·width` bytes per row, final
+/// sRGBA) as soon as it is drawn, in roughly top-to-bottom order and from the thread that drew
+/// it (progress, and the streamed PNG of the terrain pipeline).
 pub fn render_adaptive_with<P: Shaded, F: Fn(Option<u32>, f64, f64, usize) -> P + Sync>(
     raster: &Rasterizer,
     samples: u32,
     shade: &F,
     ctl: &dyn Control,
-    band_done: &(dyn Fn() + Sync),
+    band_done: &RowSink,
 ) -> Result<RgbaImage, Canceled> {
     let proj = raster.projection();
     let (w, h) = (proj.width as usize, proj.height as usize);
@@ -216,37 +227,52 @@ pub fn render_adaptive_with<P: Shaded, F: Fn(Option<u32>, f64, f64, usize) -> P 
     // Sample offsets snapped to the rasteriser's 1/256 pixel: the centre, then the pattern.
     let snap = |(x, y): (f64, f64)| (snap_offset(x), snap_offset(y));
     let pattern: Vec<(f64, f64)> = pattern[..ns].iter().map(|&o| snap(o)).collect();
-    img.data
-        .par_chunks_mut(w * 4 * BAND)
-        .enumerate()
-        .try_for_each_init(
-            || {
-                (
-                    VisBuffer::default(),
-                    VisBuffer::default(),
-                    Vec::<P>::new(),
-                    RowMask::default(),
-                )
-            },
-            |(vis, vis_aa, centre, mask), (b, out)| {
-                ctl.checkpoint()?;
-                band(
-                    raster,
-                    shade,
-                    &pattern,
-                    b,
-                    out,
-                    &mut Bufs {
-                        vis,
-                        vis_aa,
-                        centre,
-                        mask,
-                    },
-                );
-                band_done();
-                Ok(())
-            },
-        )?;
+    // Bands are handed out in image order from a shared counter to one loop per pool thread
+    // (not split in halves as a parallel iterator would): rows then finish roughly top to bottom,
+    // so `band_done` consumers that need row order (the streamed PNG) keep up, and the last
+    // bands — the image's bottom, near terrain with few, large triangles, cheap — fill the time
+    // one thread waits for the other's last expensive band. Each band is claimed once and
+    // writes only its own rows: the bytes do not depend on which thread draws it.
+    let slots: Vec<Mutex<Option<&mut [u8]>>> = img
+        .data
+        .chunks_mut(w * 4 * BAND)
+        .map(|c| Mutex::new(Some(c)))
+        .collect();
+    let next = AtomicUsize::new(0);
+    let loops = rayon::current_num_threads().clamp(1, slots.len().max(1));
+    (0..loops).into_par_iter().try_for_each(|_| {
+        let (mut vis, mut vis_aa) = (VisBuffer::default(), VisBuffer::default());
+        let (mut centre, mut mask) = (Vec::<P>::new(), RowMask::default());
+        loop {
+            let b = next.fetch_add(1, Ordering::Relaxed);
+            let Some(slot) = slots.get(b) else {
+                return Ok(());
+            };
+            let Some(out) = slot.lock().ok().and_then(|mut o| o.take()) else {
+                continue;
+            };
+            if let Err(e) = ctl.checkpoint() {
+                // The other loops stop at their next band.
+                next.store(slots.len(), Ordering::Relaxed);
+                return Err(e);
+            }
+            band(
+                raster,
+                shade,
+                &pattern,
+                b,
+                out,
+                &mut Bufs {
+                    vis: &mut vis,
+                    vis_aa: &mut vis_aa,
+                    centre: &mut centre,
+                    mask: &mut mask,
+                },
+            );
+            band_done(b * BAND, out);
+        }
+    })?;
+    drop(slots);
     Ok(img)
 }
 
