@@ -183,7 +183,9 @@ pub(super) fn render_raster(
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
     let shade = |id: Option<u32>, x: f64, y: f64, row: usize| shader.shade(id, x, y, row);
-    render_adaptive_with(rast, base.light.samples, &shade, ctl, &report)
+    // Without holes a sample that hits no triangle is the sky of its image row (`shade`):
+    // bands of sky alone are drawn a row at a time.
+    render_adaptive_with(rast, base.light.samples, &shade, !base.holes, ctl, &report)
 }
 
 /// The raster path's sample shader.
