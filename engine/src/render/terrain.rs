@@ -1227,7 +1227,7 @@ fn render_impl(
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
     let view = prepare_view(accel, camera, light, out_w, out_h, path, ctl)?;
-    render_prepared(accel, &view, rows, ctl, frac)
+    render_prepared(accel, view, rows, ctl, frac)
 }
 
 /// The part of a terrain render that depends on the heights, the camera and the lighting but
@@ -1247,6 +1247,8 @@ pub struct PreparedView {
     sun_map: Option<Vec<u8>>,
     holes: bool,
     raster: Option<raster_path::RasterGeometry>,
+    /// The image's bytes, allocated (zeroed) here so that it happens during the set-up.
+    image: Vec<u8>,
 }
 
 /// Everything of a render that reads only the heights: the path choice, the depth range, the
@@ -1320,6 +1322,7 @@ pub fn prepare_view(
         sun_map,
         holes,
         raster,
+        image: vec![0u8; w * h * 4],
     })
 }
 
@@ -1332,7 +1335,7 @@ pub fn prepare_view(
 /// bug).
 pub fn render_prepared(
     accel: &TerrainAccel,
-    view: &PreparedView,
+    view: PreparedView,
     rows: &RowSink,
     ctl: &dyn Control,
     frac: (f32, f32),
@@ -1368,7 +1371,7 @@ pub fn render_prepared(
         holes: view.holes,
     };
     if let Some(geo) = &view.raster {
-        return render_raster(&shader, geo, gen, rows, ctl, frac);
+        return render_raster(&shader, geo, gen, view.image, rows, ctl, frac);
     }
     let mut pattern = [(0.0, 0.0); 64];
     let ns = sample_pattern(light.samples, &mut pattern);
@@ -1376,7 +1379,7 @@ pub fn render_prepared(
     let mut img = RgbaImage {
         width: out_w,
         height: out_h,
-        data: vec![0u8; w * h * 4],
+        data: view.image,
     };
     let bands = h.div_ceil(BAND);
     let done = AtomicUsize::new(0);

@@ -171,7 +171,7 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
             let accel = accel.with_albedo(&colour);
             let image = render_prepared(
                 &accel,
-                &view,
+                view,
                 &|y0, rows| png_stream.rows(y0, rows),
                 ctl,
                 (DESCRIPTOR_END, render_end),

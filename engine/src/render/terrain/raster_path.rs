@@ -133,11 +133,13 @@ pub(super) fn raster_geometry(
 }
 
 /// Draw `base`'s terrain (whose accel now has the albedo) with the geometry of
-/// [`raster_geometry`] for the same heights and view.
+/// [`raster_geometry`] for the same heights and view, into `buffer` (see
+/// [`render_adaptive_with`]).
 pub(super) fn render_raster(
     base: &Shader,
     geo: &RasterGeometry,
     gen: RayGen,
+    buffer: Vec<u8>,
     rows: &RowSink,
     ctl: &dyn Control,
     frac: (f32, f32),
@@ -185,7 +187,15 @@ pub(super) fn render_raster(
     let shade = |id: Option<u32>, x: f64, y: f64, row: usize| shader.shade(id, x, y, row);
     // Without holes a sample that hits no triangle is the sky of its image row (`shade`):
     // bands of sky alone are drawn a row at a time.
-    render_adaptive_with(rast, base.light.samples, &shade, !base.holes, ctl, &report)
+    render_adaptive_with(
+        rast,
+        base.light.samples,
+        &shade,
+        !base.holes,
+        buffer,
+        ctl,
+        &report,
+    )
 }
 
 /// The raster path's sample shader.
