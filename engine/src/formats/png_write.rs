@@ -56,6 +56,180 @@ fn encode(width: u32, height: u32, color: png::ColorType, data: &[u8]) -> Vec<u8
     out
 }
 
+/// An RGBA PNG encoded while the image is still being drawn: row bands arrive in any order from
+/// any thread ([`Self::rows`]), each is filtered by the thread that offers it, and the deflate
+/// stream is fed in row order by whichever thread finds the next band ready (the others do not
+/// wait: they queue their band and return). [`Self::finish`] drains what is left and writes the
+/// file. The bytes are those of [`encode_rgba`] on the finished image: the same header (the png
+/// crate's), the same `Sub` filter, the same compressor (`fdeflate`, which the png crate uses
+/// for `Compression::Fast`) fed the same sequence of rows (one `write_data` per filtered row,
+/// filter byte first), one IDAT chunk, and the same fallback to stored blocks when deflate does
+/// not pay. Test: `stream_matches_encode_rgba`.
+///
+/// Why: the renders hand their bands over as they finish, so most of the deflate (serial by
+/// nature: one stream) runs while the other core still renders, instead of after the render on
+/// one core.
+pub struct RgbaPngStream {
+    width: u32,
+    height: u32,
+    /// Bands filtered but not yet compressed (first row → filtered rows), and the next row the
+    /// compressor expects.
+    queue: std::sync::Mutex<Queue>,
+    /// The compressor; `None` after a write error (then [`Self::finish`] encodes from scratch).
+    deflate: std::sync::Mutex<Option<fdeflate::Compressor<std::io::Cursor<Vec<u8>>>>>,
+}
+
+#[derive(Default)]
+struct Queue {
+    next_row: usize,
+    bands: std::collections::BTreeMap<usize, Vec<u8>>,
+}
+
+impl RgbaPngStream {
+    /// A stream for a `width × height` RGBA image.
+    pub fn new(width: u32, height: u32) -> Self {
+        let raw = (width as usize * 4 + 1) * height as usize;
+        Self {
+            width,
+            height,
+            queue: std::sync::Mutex::new(Queue::default()),
+            deflate: std::sync::Mutex::new(
+                fdeflate::Compressor::new(std::io::Cursor::new(Vec::with_capacity(raw / 2 + 64)))
+                    .ok(),
+            ),
+        }
+    }
+
+    /// Rows `first_row..` of the image, `data` being whole rows of `4·width` bytes (straight
+    /// RGBA). Each row must be offered exactly once; bands may come in any order and from any
+    /// thread. Filters `data` (on this thread), then compresses every band that is next in row
+    /// order unless another thread is compressing (that thread, or [`Self::finish`], takes
+    /// them).
+    pub fn rows(&self, first_row: usize, data: &[u8]) {
+        let row_len = self.width as usize * 4;
+        if row_len == 0 || data.is_empty() {
+            return;
+        }
+        let mut filtered = Vec::with_capacity(data.len() + data.len() / row_len);
+        for line in data.chunks(row_len) {
+            filtered.push(1); // FilterType::Sub
+            filter_sub_rgba(line, &mut filtered);
+        }
+        if let Ok(mut q) = self.queue.lock() {
+            q.bands.insert(first_row, filtered);
+        }
+        self.drain(false);
+    }
+
+    /// Compress the queued bands that are next in row order. With `wait`, waits for the
+    /// compressor; otherwise gives up when another thread holds it, and re-checks after
+    /// releasing it (a band queued meanwhile by a thread that gave up is not left behind).
+    fn drain(&self, wait: bool) {
+        let row_len = self.width as usize * 4 + 1;
+        loop {
+            let guard = if wait {
+                self.deflate.lock().ok()
+            } else {
+                self.deflate.try_lock().ok()
+            };
+            let Some(mut deflate) = guard else { return };
+            loop {
+                let band = self.queue.lock().ok().and_then(|mut q| {
+                    let next = q.next_row;
+                    let band = q.bands.remove(&next)?;
+                    q.next_row += band.len() / row_len;
+                    Some(band)
+                });
+                let Some(band) = band else { break };
+                if let Some(c) = deflate.as_mut() {
+                    if band
+                        .chunks(row_len)
+                        .try_for_each(|r| c.write_data(r))
+                        .is_err()
+                    {
+                        *deflate = None;
+                    }
+                }
+            }
+            drop(deflate);
+            let more = self
+                .queue
+                .lock()
+                .is_ok_and(|q| q.bands.contains_key(&q.next_row));
+            if !more {
+                return;
+            }
+        }
+    }
+
+    /// The PNG of `img` (the image whose rows were offered): [`encode_rgba`]'s bytes. Falls
+    /// back to [`encode_rgba`] when not every row was offered or the compressor failed. Panics
+    /// when `img.data.len() != 4·width·height` (a caller bug).
+    pub fn finish(self, img: &RgbaImage) -> Vec<u8> {
+        assert!(
+            img.width == self.width
+                && img.height == self.height
+                && img.data.len() == self.width as usize * self.height as usize * 4,
+            "image does not match the stream"
+        );
+        self.drain(true);
+        let complete = self
+            .queue
+            .lock()
+            .is_ok_and(|q| q.next_row == self.height as usize && q.bands.is_empty());
+        let zlib = self
+            .deflate
+            .into_inner()
+            .ok()
+            .flatten()
+            .filter(|_| complete)
+            .and_then(|c| c.finish().ok())
+            .map(std::io::Cursor::into_inner);
+        let raw = (self.width as usize * 4 + 1) * self.height as usize;
+        match zlib {
+            // The png crate's rule: stored blocks (unfiltered) when deflate makes it bigger.
+            Some(z) if z.len() <= fdeflate::StoredOnlyCompressor::<()>::compressed_size(raw) => {
+                let mut out = Vec::with_capacity(z.len() + 1024);
+                {
+                    let mut enc = png::Encoder::new(&mut out, self.width, self.height);
+                    enc.set_color(png::ColorType::Rgba);
+                    enc.set_depth(png::BitDepth::Eight);
+                    enc.set_compression(png::Compression::Fast);
+                    enc.set_filter(png::FilterType::Sub);
+                    enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+                    // Writing into a Vec only fails on inconsistent sizes, checked above.
+                    #[allow(clippy::expect_used)]
+                    let mut writer = enc.write_header().expect("png header into a Vec");
+                    // One IDAT per 2^31 − 1 bytes, as the png crate splits them.
+                    for chunk in z.chunks((u32::MAX >> 1) as usize) {
+                        #[allow(clippy::expect_used)]
+                        writer
+                            .write_chunk(png::chunk::IDAT, chunk)
+                            .expect("png data into a Vec");
+                    }
+                    #[allow(clippy::expect_used)]
+                    writer.finish().expect("png end into a Vec");
+                }
+                out
+            }
+            _ => encode_rgba(img),
+        }
+    }
+}
+
+/// The PNG `Sub` filter of one RGBA row (4 bytes per pixel), appended to `out`.
+fn filter_sub_rgba(line: &[u8], out: &mut Vec<u8>) {
+    out.extend_from_slice(&line[..line.len().min(4)]);
+    if line.len() > 4 {
+        out.extend(
+            line[4..]
+                .iter()
+                .zip(&line[..line.len() - 4])
+                .map(|(c, p)| c.wrapping_sub(*p)),
+        );
+    }
+}
+
 /// Encode `frames` as an animated PNG (APNG) that loops forever, each frame shown `delay_ms`
 /// milliseconds; the first frame is also the still image viewers without APNG support show.
 /// Full frames (no sub-rectangles), blend op `Source`, dispose op `None`; same colour settings
@@ -103,6 +277,40 @@ pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stream_matches_encode_rgba() {
+        // Bands out of order from several threads, a noisy image (deflate pays) and a flat one.
+        for (w, h, seed) in [(37u32, 29u32, 7u32), (64, 40, 0)] {
+            let mut img = RgbaImage::new_filled(w, h, [200, 210, 220, 255]);
+            let mut x = seed;
+            for (i, v) in img.data.iter_mut().enumerate() {
+                if seed != 0 {
+                    x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                    *v = (x >> 16) as u8 & if i % 3 == 0 { 0xFF } else { 0x0F };
+                }
+            }
+            let stream = RgbaPngStream::new(w, h);
+            let band = 4 * w as usize * 5;
+            let bands: Vec<(usize, &[u8])> = img.data.chunks(band).enumerate().collect();
+            let order: Vec<usize> = (0..bands.len()).rev().collect();
+            std::thread::scope(|s| {
+                for part in order.chunks(2) {
+                    let (stream, bands) = (&stream, &bands);
+                    s.spawn(move || {
+                        for &b in part {
+                            stream.rows(b * 5, bands[b].1);
+                        }
+                    });
+                }
+            });
+            assert_eq!(stream.finish(&img), encode_rgba(&img));
+            // Rows missing: falls back to the whole-image encoder.
+            let partial = RgbaPngStream::new(w, h);
+            partial.rows(0, bands[0].1);
+            assert_eq!(partial.finish(&img), encode_rgba(&img));
+        }
+    }
 
     #[test]
     fn round_trip_rgba_and_gray() {

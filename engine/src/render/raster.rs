@@ -476,6 +476,12 @@ impl Rasterizer {
         self.bin_start.len() - 1
     }
 
+    /// True when no triangle touches band `band` or its apron rows (every sample of
+    /// [`Self::rasterize_band`] and [`Self::rasterize_masked`] there is [`NO_TRI`]).
+    pub fn band_is_empty(&self, band: usize) -> bool {
+        band + 1 >= self.bin_start.len() || self.bin_start[band] == self.bin_start[band + 1]
+    }
+
     /// Number of screen triangles after clipping (a clipped triangle may become two).
     pub fn screen_triangles(&self) -> usize {
         self.parts.iter().map(|p| p.tris.len()).sum()

@@ -99,7 +99,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::adaptive::{sample_pattern, write_pixel, Sample, Shaded};
+use super::adaptive::{sample_pattern, write_pixel, RowSink, Sample, Shaded};
 use super::camera::{dot, normalize, Camera};
 use super::image::RgbaImage;
 use super::raster;
@@ -248,8 +248,16 @@ impl<'a> TerrainAccel<'a> {
     /// size is not positive (caller bugs, not input errors).
     pub fn new(scene: &TerrainScene<'a>) -> Self {
         let n = scene.width * scene.height;
-        assert_eq!(scene.heights.len(), n, "heights must be width × height");
         assert_eq!(scene.albedo.len(), n, "albedo must be width × height");
+        Self::new_geometry(scene)
+    }
+
+    /// [`Self::new`] for a scene whose `albedo` is not known yet (it may be empty): enough for
+    /// [`prepare_view`], which reads the heights only. Give it the colours with
+    /// [`Self::with_albedo`] before drawing.
+    pub fn new_geometry(scene: &TerrainScene<'a>) -> Self {
+        let n = scene.width * scene.height;
+        assert_eq!(scene.heights.len(), n, "heights must be width × height");
         assert!(
             scene.dx > 0.0 && scene.dy > 0.0,
             "cell sizes must be positive"
@@ -312,6 +320,27 @@ impl<'a> TerrainAccel<'a> {
             half_z: ch as f64 * scene.dy * 0.5,
             cell: scene.dx.min(scene.dy),
             eps_y: 1e-9 * (hmin.abs().max(hmax.abs()) + scene.dx.max(scene.dy)),
+        }
+    }
+
+    /// This pyramid (heights unchanged) over the scene with `albedo` (the pyramid does not depend
+    /// on it). Panics when `albedo` is not `width × height` long (a caller bug).
+    pub fn with_albedo<'b>(self, albedo: &'b [[f32; 3]]) -> TerrainAccel<'b>
+    where
+        'a: 'b,
+    {
+        let this: TerrainAccel<'b> = self;
+        assert_eq!(
+            albedo.len(),
+            this.scene.width * this.scene.height,
+            "albedo must be width × height"
+        );
+        TerrainAccel {
+            scene: TerrainScene {
+                albedo,
+                ..this.scene
+            },
+            ..this
         }
     }
 
@@ -1172,20 +1201,75 @@ pub fn render_with_path(
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
-    const BAND: usize = 4;
+    render_impl(
+        accel,
+        camera,
+        light,
+        out_w,
+        out_h,
+        path,
+        &|_, _| {},
+        ctl,
+        frac,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn render_impl(
+    accel: &TerrainAccel,
+    camera: &Camera,
+    light: &Lighting,
+    out_w: u32,
+    out_h: u32,
+    path: RenderPath,
+    rows: &RowSink,
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
+    let view = prepare_view(accel, camera, light, out_w, out_h, path, ctl)?;
+    render_prepared(accel, view, rows, ctl, frac)
+}
+
+/// The part of a terrain render that depends on the heights, the camera and the lighting but
+/// not on the colours ([`prepare_view`]); [`render_prepared`] draws it.
+pub struct PreparedView {
+    camera: Camera,
+    light: Lighting,
+    out_w: u32,
+    out_h: u32,
+    /// The grid it was prepared for (checked by [`render_prepared`]).
+    grid: (usize, usize),
+    near: f64,
+    far: f64,
+    sun: [f64; 3],
+    eps: f64,
+    /// The ray caster's per-grid-point sun map (the raster path keeps its own in `raster`).
+    sun_map: Option<Vec<u8>>,
+    holes: bool,
+    raster: Option<raster_path::RasterGeometry>,
+    /// The image's bytes, allocated (zeroed) here so that it happens during the set-up.
+    image: Vec<u8>,
+}
+
+/// Everything of a render that reads only the heights: the path choice, the depth range, the
+/// sun map and, on the raster path, the mesh, its projection and binning
+/// ([`raster::Rasterizer::new`]) and the corner gradients. `accel`'s albedo is not read, so it
+/// may be empty ([`TerrainAccel::new_geometry`]): the terrain pipeline runs this while the
+/// descriptor and the colours are still being computed (a `rayon::join`; both sides only read
+/// the heights), which fills the cores the descriptor's short parallel loops leave idle. No
+/// progress reports (it may run beside another stage that reports); checkpoints in the sun
+/// map. Then [`render_prepared`] with the same heights and their colours.
+pub fn prepare_view(
+    accel: &TerrainAccel,
+    camera: &Camera,
+    light: &Lighting,
+    out_w: u32,
+    out_h: u32,
+    path: RenderPath,
+    ctl: &dyn Control,
+) -> Result<PreparedView, Canceled> {
     let (w, h) = (out_w as usize, out_h as usize);
-    let mut img = RgbaImage {
-        width: out_w,
-        height: out_h,
-        data: vec![0u8; w * h * 4],
-    };
-    if w == 0 || h == 0 {
-        return Ok(img);
-    }
     let gen = camera.ray_gen(out_w, out_h);
-    let mut pattern = [(0.0, 0.0); 64];
-    let ns = sample_pattern(light.samples, &mut pattern);
-    let pattern = &pattern[..ns];
     let (near, far) = accel.depth_range(gen.eye);
     let sun = normalize(light.sun_dir);
     let eps = 1e-3 * accel.cell;
@@ -1204,24 +1288,15 @@ pub fn render_with_path(
     let want_map = light.shading
         && light.shadows
         && (raster || sc.width * sc.height < w * h || accel.sweeps(sun));
+    let empty = w == 0 || h == 0;
     // The raster path computes the map itself, in parallel with its triangle setup.
-    let sun_map = if want_map && !raster {
+    let sun_map = if want_map && !raster && !empty {
         Some(accel.sun_visibility(sun, eps, ctl)?)
     } else {
         None
     };
-    let shader = Shader {
-        accel,
-        light,
-        eye: gen.eye,
-        sun,
-        near,
-        inv_range: if far > near { 1.0 / (far - near) } else { 0.0 },
-        eps,
-        sun_map: sun_map.as_deref(),
-        holes: sc.heights.par_iter().any(|v| v.is_nan()),
-    };
-    if raster {
+    let holes = sc.heights.par_iter().any(|v| v.is_nan());
+    let raster = if raster && !empty {
         let s = RasterSetup {
             camera,
             out_w,
@@ -1230,8 +1305,82 @@ pub fn render_with_path(
             far,
             sun_map: want_map,
         };
-        return render_raster(&shader, &s, ctl, frac);
+        Some(raster_path::raster_geometry(accel, sun, eps, &s, ctl)?)
+    } else {
+        None
+    };
+    Ok(PreparedView {
+        camera: *camera,
+        light: *light,
+        out_w,
+        out_h,
+        grid: (sc.width, sc.height),
+        near,
+        far,
+        sun,
+        eps,
+        sun_map,
+        holes,
+        raster,
+        image: vec![0u8; w * h * 4],
+    })
+}
+
+/// Draw a view prepared by [`prepare_view`] over the same heights, `accel` now with the
+/// albedo. Every finished band of rows also goes to `rows(first_row, bytes)` (whole rows of
+/// final sRGBA bytes, each row once, roughly top to bottom, from the thread that drew it) while
+/// the render goes on: the terrain pipeline feeds them to its PNG encoder
+/// ([`crate::formats::png_write::RgbaPngStream`]) so the deflate overlaps the render. The
+/// image is the one [`render_with_path`] draws in one call. Panics when `accel`'s grid is not the one the view was prepared for (a caller
+/// bug).
+pub fn render_prepared(
+    accel: &TerrainAccel,
+    view: PreparedView,
+    rows: &RowSink,
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
+    const BAND: usize = 4;
+    let sc = accel.scene();
+    assert_eq!(
+        view.grid,
+        (sc.width, sc.height),
+        "view prepared for another grid"
+    );
+    let (out_w, out_h) = (view.out_w, view.out_h);
+    let (w, h) = (out_w as usize, out_h as usize);
+    if w == 0 || h == 0 {
+        return Ok(RgbaImage {
+            width: out_w,
+            height: out_h,
+            data: Vec::new(),
+        });
     }
+    let light = &view.light;
+    let gen = view.camera.ray_gen(out_w, out_h);
+    let (near, far) = (view.near, view.far);
+    let shader = Shader {
+        accel,
+        light,
+        eye: gen.eye,
+        sun: view.sun,
+        near,
+        inv_range: if far > near { 1.0 / (far - near) } else { 0.0 },
+        eps: view.eps,
+        sun_map: view.sun_map.as_deref(),
+        holes: view.holes,
+    };
+    if let Some(geo) = &view.raster {
+        return render_raster(&shader, geo, gen, view.image, rows, ctl, frac);
+    }
+    let mut pattern = [(0.0, 0.0); 64];
+    let ns = sample_pattern(light.samples, &mut pattern);
+    let pattern = &pattern[..ns];
+    let mut img = RgbaImage {
+        width: out_w,
+        height: out_h,
+        data: view.image,
+    };
     let bands = h.div_ceil(BAND);
     let done = AtomicUsize::new(0);
     // `done` counts bands over both passes.
@@ -1294,6 +1443,7 @@ pub fn render_with_path(
                     write_pixel(px, sum, cover, n);
                 }
             }
+            rows(b * BAND, band);
             report();
             Ok(())
         })?;

@@ -11,12 +11,15 @@ use super::descriptor;
 use super::params::Params;
 use crate::formats::geotiff_write::write_float32_geotiff;
 use crate::formats::glb::terrain_glb;
-use crate::formats::png_write::encode_rgba;
+use crate::formats::png_write::{encode_rgba, RgbaPngStream};
 use crate::geom::Dem;
 use crate::params::parse_hex_color;
 use crate::render::image::RgbaImage;
 use crate::render::sheet::contact_sheet;
-use crate::render::terrain::{render_with, sun_direction, Lighting, TerrainAccel, TerrainScene};
+use crate::render::terrain::{
+    prepare_view, render_prepared, render_with, sun_direction, Lighting, RenderPath, TerrainAccel,
+    TerrainScene,
+};
 use crate::{Canceled, Control, Output};
 
 /// Share of the job's progress spent before rendering starts.
@@ -86,24 +89,68 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
 /// Runs the whole pipeline. Outputs: those of `render.png`, `snow_cover.tif`, `descriptor.png`,
 /// `terrain.glb` that `outputs` names (default all), `sweep.png` (when a sweep is given) and
 /// `report.json`.
+///
+/// The body runs on a rayon pool thread (`rayon::scope` moves it there and blocks the caller):
+/// the descriptor's many small parallel loops then split their work in the pool directly
+/// instead of each waking the pool from outside and waiting to be woken in turn.
 pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+    rayon::scope(|_| run_in_pool(dem, p, ctl))
+}
+
+fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(String, f64)> = Vec::new();
     let ms = |t0: Instant| t0.elapsed().as_secs_f64() * 1e3;
 
-    let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
-
-    ctl.progress("colour", DESCRIPTOR_END);
-    let t0 = Instant::now();
-    let colour = colours(&d.t, p);
     let heights = world_heights(dem, p.descriptor.vertical_exaggeration);
-    timings.push(("colour".to_string(), ms(t0)));
+    let light = lighting(p);
+    // The render's set-up that needs only the heights and the camera (path choice, mesh,
+    // rasteriser set-up, gradients, sun map: `prepare_view`) runs beside the descriptor and the
+    // colours: the descriptor's passes over 80 k cells (the paper case) are short parallel
+    // loops with serial stretches between them that leave a core idle. Both sides only read
+    // the DEM; neither reports progress but the descriptor (the set-up has no progress of its
+    // own). Stage "render_setup" is the set-up's time, overlapping "smooth" … "colour".
+    let ((d, colour, colour_ms), geometry) = {
+        let (dc, geometry) = rayon::join(
+            || -> Result<_, Canceled> {
+                let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
+                ctl.progress("colour", DESCRIPTOR_END);
+                let t0 = Instant::now();
+                let colour = colours(&d.t, p);
+                Ok((d, colour, ms(t0)))
+            },
+            || -> Result<_, Canceled> {
+                if !p.wants("render.png") {
+                    return Ok(None);
+                }
+                let t0 = Instant::now();
+                let scene = scene_of(dem, &heights, &[]);
+                let accel = TerrainAccel::new_geometry(&scene);
+                let camera = p
+                    .camera
+                    .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
+                let view = prepare_view(
+                    &accel,
+                    &camera,
+                    &light,
+                    p.width,
+                    p.height,
+                    RenderPath::Auto,
+                    ctl,
+                )?;
+                Ok(Some((accel, view, ms(t0))))
+            },
+        );
+        (dc?, geometry?)
+    };
+    timings.push(("colour".to_string(), colour_ms));
 
     // The outputs that do not need the picture (snow_cover.tif, descriptor.png, terrain.glb)
-    // are encoded while the render runs: the render has serial stretches (mesh setup, band
-    // tails) that leave a core idle. Stage "render" is the render's own time; "encode" below is
-    // the PNG plus whatever the other encoders took beyond the render. Outputs not asked for
-    // (`outputs`) are not made, and without `render.png` there is no render.
+    // and the report's figures are made while the render draws (they read the descriptor and
+    // the heights only): the render has stretches that leave a core idle. Stage "render" is the
+    // render's own time after its set-up; "encode" below is the PNG's tail plus whatever the
+    // other encoders took beyond the render. Outputs not asked for (`outputs`) are not made,
+    // and without `render.png` there is no render.
     let t0 = Instant::now();
     let snow: Vec<f32> = d.t.par_iter().map(|&t| 1.0 - t).collect();
     let render_end = if p.sweep_runs.is_empty() {
@@ -111,27 +158,25 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     } else {
         0.6
     };
-    let ((image, render_ms), (tif, (preview, glb))) = rayon::join(
+    // `render.png` is deflated while the render draws: each band goes to the encoder when it is
+    // finished, and the thread that completes the next band in row order feeds the deflate
+    // stream (`RgbaPngStream`); what is left after the last band is a few rows.
+    let png_stream = RgbaPngStream::new(p.width, p.height);
+    let ((image, setup_ms, render_ms), (tif, (preview, (glb, figures)))) = rayon::join(
         || {
-            if !p.wants("render.png") {
-                return (Ok(None), 0.0);
-            }
+            let Some((accel, view, setup_ms)) = geometry else {
+                return (Ok(None), 0.0, 0.0);
+            };
             let t0 = Instant::now();
-            let scene = scene_of(dem, &heights, &colour);
-            let accel = TerrainAccel::new(&scene);
-            let camera = p
-                .camera
-                .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
-            let image = render_with(
+            let accel = accel.with_albedo(&colour);
+            let image = render_prepared(
                 &accel,
-                &camera,
-                &lighting(p),
-                p.width,
-                p.height,
+                view,
+                &|y0, rows| png_stream.rows(y0, rows),
                 ctl,
                 (DESCRIPTOR_END, render_end),
             );
-            (image.map(Some), ms(t0))
+            (image.map(Some), setup_ms, ms(t0))
         },
         || {
             rayon::join(
@@ -146,17 +191,22 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
                                 .then(|| encode_rgba(&descriptor_preview(dem, &d.t)))
                         },
                         || {
-                            p.wants("terrain.glb").then(|| {
-                                terrain_glb(
-                                    &heights,
-                                    dem.width,
-                                    dem.height,
-                                    dem.dx,
-                                    dem.dy,
-                                    &colour,
-                                    p.mesh_max_vertices,
-                                )
-                            })
+                            rayon::join(
+                                || {
+                                    p.wants("terrain.glb").then(|| {
+                                        terrain_glb(
+                                            &heights,
+                                            dem.width,
+                                            dem.height,
+                                            dem.dx,
+                                            dem.dy,
+                                            &colour,
+                                            p.mesh_max_vertices,
+                                        )
+                                    })
+                                },
+                                || report_figures(dem, &snow),
+                            )
                         },
                     )
                 },
@@ -165,6 +215,7 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     );
     let image = image?;
     if image.is_some() {
+        timings.push(("render_setup".to_string(), setup_ms));
         timings.push(("render".to_string(), render_ms));
     }
     let overlap_ms = (ms(t0) - render_ms).max(0.0);
@@ -179,33 +230,17 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
 
     ctl.progress("encode", RENDER_END);
     let t0 = Instant::now();
-    let png = image.as_ref().map(encode_rgba);
+    let png = image.as_ref().map(|img| png_stream.finish(img));
     timings.push(("encode".to_string(), overlap_ms + ms(t0)));
     ctl.checkpoint()?;
 
-    // (valid cells, covered cells, Σ snow) per chunk, summed in chunk order: the same figures
-    // whatever the thread count.
-    let parts: Vec<(usize, usize, f64)> = snow
-        .par_chunks(1 << 16)
-        .map(|c| {
-            c.iter()
-                .filter(|s| !s.is_nan())
-                .fold((0, 0, 0.0), |(n, k, sum), &s| {
-                    (n + 1, k + usize::from(s >= 0.5), sum + f64::from(s))
-                })
-        })
-        .collect();
-    let (valid, covered, total) = parts
-        .iter()
-        .fold((0, 0, 0.0), |(n, k, s), p| (n + p.0, k + p.1, s + p.2));
-    let mean_snow = total / valid.max(1) as f64;
+    let (valid, covered, mean_snow, stats) = figures;
     let mut stage_ms: Vec<serde_json::Value> = d
         .timings
         .iter()
         .map(|(s, ms)| json!({"stage": s, "ms": ms}))
         .collect();
     stage_ms.extend(timings.iter().map(|(s, ms)| json!({"stage": s, "ms": ms})));
-    let stats = dem.stats();
     let report = json!({
         "pipeline": "snow-terrain",
         "params": serde_json::to_value(p).unwrap_or_default(),
@@ -237,6 +272,28 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
     outputs.push(Output::new("report.json", "application/json", report));
     ctl.progress("done", 1.0);
     Ok(outputs)
+}
+
+/// The report's figures: (valid cells, snow-covered cells, mean snow, the DEM's elevation
+/// statistics). Computed beside the render (they need only the descriptor). (valid cells,
+/// covered cells, Σ snow) per chunk, summed in chunk order: the same figures whatever the
+/// thread count.
+#[allow(clippy::type_complexity)]
+fn report_figures(dem: &Dem, snow: &[f32]) -> (usize, usize, f64, Option<(f32, f32, f64)>) {
+    let parts: Vec<(usize, usize, f64)> = snow
+        .par_chunks(1 << 16)
+        .map(|c| {
+            c.iter()
+                .filter(|s| !s.is_nan())
+                .fold((0, 0, 0.0), |(n, k, sum), &s| {
+                    (n + 1, k + usize::from(s >= 0.5), sum + f64::from(s))
+                })
+        })
+        .collect();
+    let (valid, covered, total) = parts
+        .iter()
+        .fold((0, 0, 0.0), |(n, k, s), p| (n + p.0, k + p.1, s + p.2));
+    (valid, covered, total / valid.max(1) as f64, dem.stats())
 }
 
 /// `sweep.png`: one tile per sweep value, each a full descriptor + render at a third of the

@@ -537,3 +537,24 @@ fn timings() {
         median(&mut walls)
     );
 }
+
+/// `render.png` is streamed while the render draws (`RgbaPngStream`): its bytes must be those of
+/// `encode_rgba` on the finished image, on the raster path (fewer cells than pixels, with and
+/// without holes) and on the ray caster (more cells than pixels).
+#[test]
+fn streamed_render_png_is_encode_rgba_of_the_image() {
+    use phenomena_engine::formats::png_write::encode_rgba;
+    for (name, w, h) in [
+        ("maunga_whau_volcano.asc", 240, 160),
+        ("maunga_whau_volcano.asc", 60, 40),
+        ("luxembourg_elev.tif", 320, 200),
+    ] {
+        let d = dem(name);
+        let p = params(json!({"width": w, "height": h, "outputs": ["render.png"]}));
+        let outs = run(&d, &p, &NoControl).unwrap();
+        let png = output(&outs, "render.png");
+        let img = decode_rgba(png);
+        assert_eq!((img.width, img.height), (w, h));
+        assert!(encode_rgba(&img) == png, "{name} {w}×{h}");
+    }
+}

@@ -17,6 +17,10 @@
 //! eight lanes interpolate together. Shading is the ray caster's ([`Shader::shade_hit`]) in
 //! `f32` (the gradients were `f64`; the normals differ by ~1e-7).
 //!
+//! **Two halves.** [`raster_geometry`] (mesh, [`Rasterizer::new`], gradients, sun map) reads
+//! the heights and the camera only, so a caller can run it while the colours are still being
+//! computed ([`super::prepare_view`]); [`render_raster`] adds the albedo and draws.
+//!
 //! Allocation: the mesh (24 B per grid point, 12 B per triangle), the rasteriser's buffers, the
 //! records (32 B per grid point), the sun map (1 B per grid point).
 
@@ -24,14 +28,14 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::{Hit, Px, Shader};
+use super::{Hit, Px, Shader, TerrainAccel};
 use crate::control::{Canceled, Control};
-use crate::render::adaptive::{render_adaptive_with, Sample};
+use crate::render::adaptive::{render_adaptive_with, RowSink, Sample};
 use crate::render::camera::{dot, Camera, RayGen};
 use crate::render::image::RgbaImage;
 use crate::render::raster::{Mesh, Projection, Rasterizer};
 
-/// View parameters of [`render_raster`].
+/// View parameters of [`raster_geometry`].
 pub(super) struct RasterSetup<'c> {
     pub camera: &'c Camera,
     pub out_w: u32,
@@ -43,47 +47,63 @@ pub(super) struct RasterSetup<'c> {
     pub sun_map: bool,
 }
 
-/// Render `base`'s terrain by the rasteriser. The sun map (sweep or shadow rays) runs in
-/// parallel with the mesh, gradients and triangle setup.
-pub(super) fn render_raster(
-    base: &Shader,
+/// The raster path's colour-independent part: the triangles projected and binned, the corner
+/// gradients and the sun map.
+pub(super) struct RasterGeometry {
+    rast: Rasterizer,
+    grads: Vec<[f64; 2]>,
+    map: Option<Vec<u8>>,
+}
+
+/// The mesh, [`Rasterizer`], gradients and sun map of `accel`'s grid for the view `v`: reads
+/// the heights only, never the albedo. The sun map (sweep or shadow rays) runs in parallel with
+/// the mesh, gradients and triangle setup.
+pub(super) fn raster_geometry(
+    accel: &TerrainAccel,
+    sun: [f64; 3],
+    eps: f64,
     v: &RasterSetup,
     ctl: &dyn Control,
-    frac: (f32, f32),
-) -> Result<RgbaImage, Canceled> {
+) -> Result<RasterGeometry, Canceled> {
     let (camera, out_w, out_h) = (v.camera, v.out_w, v.out_h);
-    let accel = base.accel;
     let s = accel.scene();
     let (gw, cw, ch) = (s.width, accel.cw, accel.ch);
     let prepare = || {
         // Grid points and two triangles per cell, A = (00, 10, 11) then B = (00, 01, 11) as in
-        // the ray caster, so triangle k belongs to cell k / 2.
-        let positions: Vec<[f64; 3]> = (0..s.width * s.height)
-            .into_par_iter()
-            .map(|k| {
-                let (c, r) = (k % gw, k / gw);
-                [
-                    c as f64 * s.dx - accel.half_x,
-                    f64::from(s.heights[k]),
-                    r as f64 * s.dy - accel.half_z,
-                ]
-            })
-            .collect();
-        let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(2 * cw * ch);
-        for j in 0..ch {
-            for i in 0..cw {
-                let k = (j * gw + i) as u32;
-                let g = gw as u32;
-                let hs = &s.heights[k as usize..];
-                if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
-                    // A hole: any nodata corner removes both triangles (as in `cell_hit`);
-                    // degenerate triangles keep the index ↔ cell mapping and are skipped.
-                    triangles.extend([[k; 3], [k; 3]]);
-                } else {
-                    triangles.extend([[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]);
+        // the ray caster, so triangle k belongs to cell k / 2. The two lists are built side by
+        // side (the triangle loop is serial: its output order is the cell order).
+        let positions = || -> Vec<[f64; 3]> {
+            (0..s.width * s.height)
+                .into_par_iter()
+                .map(|k| {
+                    let (c, r) = (k % gw, k / gw);
+                    [
+                        c as f64 * s.dx - accel.half_x,
+                        f64::from(s.heights[k]),
+                        r as f64 * s.dy - accel.half_z,
+                    ]
+                })
+                .collect()
+        };
+        let triangles = || {
+            let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(2 * cw * ch);
+            for j in 0..ch {
+                for i in 0..cw {
+                    let k = (j * gw + i) as u32;
+                    let g = gw as u32;
+                    let hs = &s.heights[k as usize..];
+                    if (hs[0] + hs[1] + hs[gw] + hs[gw + 1]).is_nan() {
+                        // A hole: any nodata corner removes both triangles (as in `cell_hit`);
+                        // degenerate triangles keep the index ↔ cell mapping and are skipped.
+                        triangles.extend([[k; 3], [k; 3]]);
+                    } else {
+                        triangles.extend([[k, k + 1, k + g + 1], [k, k + g, k + g + 1]]);
+                    }
                 }
             }
-        }
+            triangles
+        };
+        let (triangles, positions) = rayon::join(triangles, positions);
         // Near plane: half the distance to the bounding box, but not so close that 1/z loses
         // the far range (geometry nearer than it would fill the view anyway).
         let near_plane = (0.5 * v.near).max(1e-6 * v.far).max(1e-9);
@@ -100,12 +120,36 @@ pub(super) fn render_raster(
     let (map, (rast, grads)) = rayon::join(
         || {
             v.sun_map
-                .then(|| accel.sun_visibility(base.sun, base.eps, ctl))
+                .then(|| accel.sun_visibility(sun, eps, ctl))
                 .transpose()
         },
         prepare,
     );
-    let map = map?;
+    Ok(RasterGeometry {
+        rast,
+        grads,
+        map: map?,
+    })
+}
+
+/// Draw `base`'s terrain (whose accel now has the albedo) with the geometry of
+/// [`raster_geometry`] for the same heights and view, into `buffer` (see
+/// [`render_adaptive_with`]).
+pub(super) fn render_raster(
+    base: &Shader,
+    geo: &RasterGeometry,
+    gen: RayGen,
+    buffer: Vec<u8>,
+    rows: &RowSink,
+    ctl: &dyn Control,
+    frac: (f32, f32),
+) -> Result<RgbaImage, Canceled> {
+    let accel = base.accel;
+    let s = accel.scene();
+    let cw = accel.cw;
+    let RasterGeometry { rast, grads, map } = geo;
+    let proj = rast.projection();
+    let out_h = proj.height;
     ctl.checkpoint()?;
     let records: Vec<[f32; 8]> = grads
         .par_iter()
@@ -118,8 +162,8 @@ pub(super) fn render_raster(
         .collect();
     let shader = RasterShader {
         base,
-        rast: &rast,
-        gen: camera.ray_gen(out_w, out_h),
+        rast,
+        gen,
         records: &records,
         inv_h: 1.0 / f64::from(out_h.max(1)),
         cw: cw.max(1),
@@ -134,13 +178,24 @@ pub(super) fn render_raster(
     };
     let bands = rast.bands().max(1);
     let done = AtomicUsize::new(0);
-    let report = || {
+    let report = |y0: usize, data: &[u8]| {
+        rows(y0, data);
         let n = done.fetch_add(1, Ordering::Relaxed) + 1;
         let f = n as f32 / bands as f32;
         ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
     };
     let shade = |id: Option<u32>, x: f64, y: f64, row: usize| shader.shade(id, x, y, row);
-    render_adaptive_with(&rast, base.light.samples, &shade, ctl, &report)
+    // Without holes a sample that hits no triangle is the sky of its image row (`shade`):
+    // bands of sky alone are drawn a row at a time.
+    render_adaptive_with(
+        rast,
+        base.light.samples,
+        &shade,
+        !base.holes,
+        buffer,
+        ctl,
+        &report,
+    )
 }
 
 /// The raster path's sample shader.
