@@ -172,7 +172,15 @@ async fn report_describes_input_params_and_stages() {
     assert_eq!(
         stages,
         [
-            "smooth", "tsa", "transfer", "altitude", "smooth_t", "sun", "colour", "render",
+            "smooth",
+            "tsa",
+            "transfer",
+            "altitude",
+            "smooth_t",
+            "sun",
+            "colour",
+            "render_setup",
+            "render",
             "encode"
         ]
     );
