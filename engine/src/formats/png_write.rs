@@ -39,12 +39,7 @@ fn encode(width: u32, height: u32, color: png::ColorType, data: &[u8]) -> Vec<u8
     );
     let mut out = Vec::with_capacity(data.len() / 2 + 1024);
     {
-        let mut enc = png::Encoder::new(&mut out, width, height);
-        enc.set_color(color);
-        enc.set_depth(png::BitDepth::Eight);
-        enc.set_compression(png::Compression::Fast);
-        enc.set_filter(png::FilterType::Sub);
-        enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        let enc = encoder(&mut out, width, height, color);
         // Writing into a Vec only fails on inconsistent sizes, checked above.
         #[allow(clippy::expect_used)]
         let mut writer = enc.write_header().expect("png header into a Vec");
@@ -191,12 +186,7 @@ impl RgbaPngStream {
             Some(z) if z.len() <= fdeflate::StoredOnlyCompressor::<()>::compressed_size(raw) => {
                 let mut out = Vec::with_capacity(z.len() + 1024);
                 {
-                    let mut enc = png::Encoder::new(&mut out, self.width, self.height);
-                    enc.set_color(png::ColorType::Rgba);
-                    enc.set_depth(png::BitDepth::Eight);
-                    enc.set_compression(png::Compression::Fast);
-                    enc.set_filter(png::FilterType::Sub);
-                    enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+                    let enc = encoder(&mut out, self.width, self.height, png::ColorType::Rgba);
                     // Writing into a Vec only fails on inconsistent sizes, checked above.
                     #[allow(clippy::expect_used)]
                     let mut writer = enc.write_header().expect("png header into a Vec");
@@ -215,6 +205,24 @@ impl RgbaPngStream {
             _ => encode_rgba(img),
         }
     }
+}
+
+/// A PNG encoder with the settings every writer here shares: 8 bits, `Fast` deflate, the `Sub`
+/// filter, sRGB (perceptual). [`RgbaPngStream`] depends on these being the same as
+/// [`encode_rgba`]'s.
+fn encoder<W: std::io::Write>(
+    out: W,
+    width: u32,
+    height: u32,
+    color: png::ColorType,
+) -> png::Encoder<'static, W> {
+    let mut enc = png::Encoder::new(out, width, height);
+    enc.set_color(color);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::FilterType::Sub);
+    enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+    enc
 }
 
 /// The PNG `Sub` filter of one RGBA row (4 bytes per pixel), appended to `out`.
@@ -248,12 +256,7 @@ pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
     }
     let mut out = Vec::with_capacity(frames.len() * (frames[0].data.len() / 2 + 64) + 1024);
     {
-        let mut enc = png::Encoder::new(&mut out, width, height);
-        enc.set_color(png::ColorType::Rgba);
-        enc.set_depth(png::BitDepth::Eight);
-        enc.set_compression(png::Compression::Fast);
-        enc.set_filter(png::FilterType::Sub);
-        enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        let mut enc = encoder(&mut out, width, height, png::ColorType::Rgba);
         // These only fail for zero frames or a zero denominator, excluded above; writing into a
         // Vec only fails on inconsistent sizes, also checked above.
         #[allow(clippy::expect_used)]
