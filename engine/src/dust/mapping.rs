@@ -153,20 +153,7 @@ pub fn box_uvs(
         .iter()
         .map(|tri| {
             let [a, b, c] = tri.map(|i| positions[i as usize]);
-            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let n = [
-                (u[1] * v[2] - u[2] * v[1]).abs(),
-                (u[2] * v[0] - u[0] * v[2]).abs(),
-                (u[0] * v[1] - u[1] * v[0]).abs(),
-            ];
-            let axis = if n[0] >= n[1] && n[0] >= n[2] {
-                0
-            } else if n[1] >= n[2] {
-                1
-            } else {
-                2
-            };
+            let (axis, [su, sv]) = crate::geom::box_projection(a, b, c);
             tri.map(|i| {
                 let s = &mut slot[i as usize * 3 + axis];
                 if *s == u32::MAX {
@@ -174,11 +161,7 @@ pub fn box_uvs(
                     src.push(i);
                     let p = positions[i as usize];
                     let q = [0, 1, 2].map(|k| (p[k] - origin[k]) * inv);
-                    uvs.push(match axis {
-                        0 => [q[2], q[1]],
-                        1 => [q[0], q[2]],
-                        _ => [q[0], q[1]],
-                    });
+                    uvs.push([q[su], q[sv]]);
                 }
                 *s
             })

@@ -1201,33 +1201,8 @@ pub fn render_with_path(
     ctl: &dyn Control,
     frac: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
-    render_impl(
-        accel,
-        camera,
-        light,
-        out_w,
-        out_h,
-        path,
-        &|_, _| {},
-        ctl,
-        frac,
-    )
-}
-
-#[allow(clippy::too_many_arguments)]
-fn render_impl(
-    accel: &TerrainAccel,
-    camera: &Camera,
-    light: &Lighting,
-    out_w: u32,
-    out_h: u32,
-    path: RenderPath,
-    rows: &RowSink,
-    ctl: &dyn Control,
-    frac: (f32, f32),
-) -> Result<RgbaImage, Canceled> {
     let view = prepare_view(accel, camera, light, out_w, out_h, path, ctl)?;
-    render_prepared(accel, view, rows, ctl, frac)
+    render_prepared(accel, view, &|_, _| {}, ctl, frac)
 }
 
 /// The part of a terrain render that depends on the heights, the camera and the lighting but

@@ -251,26 +251,7 @@ pub fn flake_overlay(
             continue;
         }
         let [a, b, c] = t.map(|i| positions[i as usize]);
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let fnorm = [
-            (u[1] * v[2] - u[2] * v[1]).abs(),
-            (u[2] * v[0] - u[0] * v[2]).abs(),
-            (u[0] * v[1] - u[1] * v[0]).abs(),
-        ];
-        // Dominant axis (ties to the lowest index: deterministic); project onto the other two.
-        let axis = if fnorm[0] >= fnorm[1] && fnorm[0] >= fnorm[2] {
-            0
-        } else if fnorm[1] >= fnorm[2] {
-            1
-        } else {
-            2
-        };
-        let (s, r) = match axis {
-            0 => (2, 1),
-            1 => (0, 2),
-            _ => (0, 1),
-        };
+        let (_, [s, r]) = crate::geom::box_projection(a, b, c);
         let base = out.positions.len() as u32;
         for (j, &i) in t.iter().enumerate() {
             let p = positions[i as usize];
