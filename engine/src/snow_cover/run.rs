@@ -23,7 +23,7 @@ use serde_json::json;
 use super::params::Params;
 use super::probability::main_direction;
 use super::shape::{displace, snow_meshes, SnowMesh, DEFAULT_MIN_DEPTH_M};
-use super::snowfall::simulate;
+use super::snowfall::{simulate, Snowfall, DEFAULT_RATE_M_PER_H};
 use super::sparse::{flake_overlay, flake_texture, vertex_coverage, FLAKE_TEXTURE_SIZE};
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
@@ -256,6 +256,8 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let timelapse = (frames.len() > 1).then(|| encode_apng(&frames, 250));
     timings.push(("encode".into(), t0.elapsed().as_secs_f64() * 1e3));
 
+    let scaled_to_scene =
+        p.snowfall.is_none() && model.snowfall != Snowfall::Constant(DEFAULT_RATE_M_PER_H);
     let b = &report.balance;
     let resting: f64 = b.resting_m3.iter().sum();
     let n = displaced.probability.len().max(1) as f64;
@@ -270,8 +272,7 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
         },
         "snowfall": {
             "total_m": model.snowfall.cumulative(model.duration_h),
-            "scaled_to_scene": p.snowfall.is_none()
-                && model.snowfall != super::snowfall::Snowfall::Constant(super::snowfall::DEFAULT_RATE_M_PER_H),
+            "scaled_to_scene": scaled_to_scene,
         },
         "maps": {
             "nx": maps.nx,
