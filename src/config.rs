@@ -79,6 +79,11 @@ pub struct ServeArgs {
     /// Seconds between retention sweeps. Default 300.
     #[arg(long, env = "PHENOMENA_SWEEP_INTERVAL_SECS")]
     pub sweep_interval_secs: Option<u64>,
+    /// Most times a job is started before it is given up as poisoned (its worker died in every
+    /// attempt: a crash, an OOM kill). Default 3: one crash of an unlucky moment and one retry
+    /// after it are forgiven; a job that takes its worker down three times would keep doing so.
+    #[arg(long, env = "PHENOMENA_MAX_ATTEMPTS")]
+    pub max_attempts: Option<u32>,
     /// Pipeline threads (0 = one per core). Default 0.
     #[arg(long, env = "PHENOMENA_THREADS")]
     pub threads: Option<usize>,
@@ -166,6 +171,7 @@ pub struct Config {
     pub job_timeout_secs: u64,
     pub retention_secs: u64,
     pub sweep_interval_secs: u64,
+    pub max_attempts: u32,
     pub threads: usize,
     pub max_wait_secs: u64,
     pub shutdown_grace_secs: u64,
@@ -261,6 +267,7 @@ impl Default for Config {
             job_timeout_secs: 600,
             retention_secs: 7 * 24 * 3600,
             sweep_interval_secs: 300,
+            max_attempts: 3,
             threads: 0,
             max_wait_secs: 60,
             shutdown_grace_secs: 30,
@@ -320,6 +327,7 @@ impl Config {
             job_timeout_secs: pick!(job_timeout_secs),
             retention_secs: pick!(retention_secs),
             sweep_interval_secs: pick!(sweep_interval_secs),
+            max_attempts: pick!(max_attempts),
             threads: pick!(threads),
             max_wait_secs: pick!(max_wait_secs),
             shutdown_grace_secs: pick!(shutdown_grace_secs),
@@ -380,6 +388,9 @@ impl Config {
         if cfg.concurrency == 0 {
             return Err(ConfigError::Zero("concurrency"));
         }
+        if cfg.max_attempts == 0 {
+            return Err(ConfigError::Zero("max_attempts"));
+        }
         if cfg.sweep_interval_secs == 0 {
             return Err(ConfigError::Zero("sweep_interval_secs"));
         }
@@ -413,6 +424,7 @@ impl Config {
             job_timeout: Duration::from_secs(self.job_timeout_secs),
             retention: Duration::from_secs(self.retention_secs),
             sweep_interval: Duration::from_secs(self.sweep_interval_secs),
+            max_attempts: self.max_attempts,
             threads: self.threads,
         }
     }

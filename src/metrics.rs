@@ -13,6 +13,9 @@ pub struct Metrics {
     pub http_duration: HistogramVec,
     pub job_duration: HistogramVec,
     pub jobs_finished: IntCounterVec,
+    /// Jobs given up after `max_attempts` starts whose worker died each time (also counted in
+    /// `jobs_finished_total{status="failed"}`).
+    pub jobs_poisoned: IntCounterVec,
     pub queue_depth: IntGauge,
     pub jobs_running: IntGauge,
     pub store_bytes: IntGauge,
@@ -61,6 +64,13 @@ impl Metrics {
                 Opts::new("jobs_finished_total", "Jobs by pipeline and final status"),
                 &["pipeline", "status"],
             )?,
+            jobs_poisoned: IntCounterVec::new(
+                Opts::new(
+                    "jobs_poisoned_total",
+                    "Jobs failed as poisoned: started max_attempts times, the worker died in each",
+                ),
+                &["pipeline"],
+            )?,
             queue_depth: IntGauge::new(
                 "queue_depth",
                 "Jobs waiting in the queue (the shared queue with Redis)",
@@ -85,6 +95,7 @@ impl Metrics {
         m.registry.register(Box::new(m.http_duration.clone()))?;
         m.registry.register(Box::new(m.job_duration.clone()))?;
         m.registry.register(Box::new(m.jobs_finished.clone()))?;
+        m.registry.register(Box::new(m.jobs_poisoned.clone()))?;
         m.registry.register(Box::new(m.queue_depth.clone()))?;
         m.registry.register(Box::new(m.jobs_running.clone()))?;
         m.registry.register(Box::new(m.store_bytes.clone()))?;

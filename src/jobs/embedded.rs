@@ -20,7 +20,7 @@ use chrono::Utc;
 use tokio::sync::{watch, Notify};
 use tracing::Instrument;
 
-use super::exec::{execute, Executor};
+use super::exec::{execute, poison, Executor};
 use super::record;
 use super::{
     build_pool, CancelError, CancelReason, InputRef, JobBackend, JobHooks, JobRecord, JobsConfig,
@@ -52,6 +52,14 @@ struct Inner {
     work: Notify,
     accepting: AtomicBool,
     idle: Notify,
+}
+
+/// What a worker takes from the queue.
+enum Next {
+    /// A job to run, marked running.
+    Run(JobRecord, Arc<Live>),
+    /// A job failed as poisoned instead of starting again (already persisted and announced).
+    Poisoned(JobRecord),
 }
 
 /// The embedded backend; cheap to clone.
@@ -338,7 +346,12 @@ impl Embedded {
             }
             let notified = self.inner.work.notified();
             match self.take_next() {
-                Ok(Some((rec, live))) => {
+                Ok(Some(Next::Poisoned(rec))) => {
+                    // Hooks run before waiters wake, as for a job that ends in a run.
+                    self.inner.hooks.finished(&rec).await;
+                    self.inner.idle.notify_waiters();
+                }
+                Ok(Some(Next::Run(rec, live))) => {
                     let span = tracing::info_span!("job", job = %rec.id, pipeline = %rec.pipeline, worker = index);
                     let id = rec.id.clone();
                     let done = execute(&self.inner.exec, rec, live).instrument(span).await;
@@ -355,8 +368,9 @@ impl Embedded {
         }
     }
 
-    /// Takes the next queued job and marks it running (persisted).
-    fn take_next(&self) -> Result<Option<(JobRecord, Arc<Live>)>, StoreError> {
+    /// Takes the next queued job and marks it running (persisted). A job already started
+    /// `max_attempts` times (its worker died each time) is failed as poisoned instead.
+    fn take_next(&self) -> Result<Option<Next>, StoreError> {
         let mut st = self.state();
         while let Some(id) = st.queue.pop_front() {
             let Some(entry) = st.jobs.get_mut(&id) else {
@@ -364,6 +378,29 @@ impl Embedded {
             };
             if entry.record.status != Status::Queued {
                 continue;
+            }
+            if entry.record.attempts >= self.inner.cfg.max_attempts {
+                poison(&mut entry.record, self.inner.cfg.max_attempts);
+                let rec = entry.record.clone();
+                entry.live.tx.send_replace(rec.snapshot());
+                if st.by_key.get(&rec.key).is_some_and(|j| *j == rec.id) {
+                    st.by_key.remove(&rec.key);
+                }
+                self.metrics().queue_depth.set(st.queue.len() as i64);
+                self.metrics()
+                    .jobs_finished
+                    .with_label_values(&[rec.pipeline.as_str(), rec.status.as_str()])
+                    .inc();
+                self.metrics()
+                    .jobs_poisoned
+                    .with_label_values(&[rec.pipeline.as_str()])
+                    .inc();
+                tracing::error!(job = %rec.id, attempts = rec.attempts, "job poisoned: its worker died in every attempt; not retried");
+                drop(st);
+                if let Err(e) = self.store().put_json(&self.job_path(&rec.id), &rec) {
+                    tracing::warn!(job = %rec.id, error = %e, "could not record the poisoned job");
+                }
+                return Ok(Some(Next::Poisoned(rec)));
             }
             entry.record.status = Status::Running;
             entry.record.started_at = Some(Utc::now());
@@ -391,7 +428,7 @@ impl Embedded {
             if let Err(e) = self.store().put_json(&self.job_path(&rec.id), &rec) {
                 tracing::warn!(job = %rec.id, error = %e, "could not record the job as running; running it anyway");
             }
-            return Ok(Some((rec, live)));
+            return Ok(Some(Next::Run(rec, live)));
         }
         Ok(None)
     }

@@ -83,6 +83,26 @@ pub(crate) fn failure(kind: &str, title: &str, detail: impl Into<String>) -> Job
     }
 }
 
+/// Ends a job that was started `max_attempts` times and never reached an end (its worker
+/// process died in every attempt: a crash, an out-of-memory kill): `failed` with the `poisoned`
+/// problem type, and never run again. Both backends call it when they are about to start such a
+/// job once more. Sets `finished_at`.
+pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
+    rec.status = Status::Failed;
+    rec.progress = 0.0;
+    rec.stage = None;
+    rec.finished_at = Some(chrono::Utc::now());
+    rec.error = Some(failure(
+        "poisoned",
+        "Job poisoned",
+        format!(
+            "the job was started {} times and its worker stopped before the end of each attempt \
+             (a crash or an out-of-memory kill); it is not retried again (max_attempts = {max_attempts})",
+            rec.attempts
+        ),
+    ));
+}
+
 /// Runs one job to its final record.
 pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
     let t0 = Instant::now();
@@ -215,6 +235,9 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                 tracing::warn!(job = %rec.id, "job exceeded its time limit");
             }
             CancelReason::Shutdown => {
+                // A run cut short by a graceful shutdown is not held against the job: only
+                // attempts whose worker died count towards `max_attempts`.
+                rec.attempts = rec.attempts.saturating_sub(1);
                 rec.status = Status::Queued;
                 rec.progress = 0.0;
                 rec.stage = None;

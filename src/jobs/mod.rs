@@ -62,6 +62,8 @@ pub struct JobsConfig {
     pub sweep_interval: Duration,
     /// Threads of the pipeline rayon pool (0 = one per core).
     pub threads: usize,
+    /// Starts after which a job that never finished is failed as poisoned. Default 3.
+    pub max_attempts: u32,
 }
 
 /// A backend that cannot answer (Redis unreachable, the data directory unwritable). The API maps

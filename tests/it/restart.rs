@@ -156,6 +156,151 @@ async fn kill_9_mid_job_then_restart_completes_the_job() {
     child.wait().unwrap();
 }
 
+/// Waits until job `id` is running with progress (on attempt `attempt`), then `kill -9`s the
+/// server: the worker dies mid-job.
+async fn kill_while_running(
+    client: &reqwest::Client,
+    addr: &str,
+    id: &str,
+    attempt: u64,
+    child: &mut Child,
+) {
+    let t0 = Instant::now();
+    loop {
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] == "running" && j["progress"].as_f64().unwrap() > 0.0 {
+            assert_eq!(j["attempts"], json!(attempt), "{j}");
+            break;
+        }
+        assert!(
+            j["status"] == "queued" || j["status"] == "running",
+            "the job ended before it could be killed: {j}"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(120), "{j}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+}
+
+/// Poison jobs (issue 20): a job whose worker dies in every attempt is started `--max-attempts`
+/// times, then ends `failed` with the `poisoned` problem type instead of being retried forever;
+/// the metric counts it, the same request is a new job, and the server keeps running others.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_whose_worker_dies_in_every_attempt_ends_poisoned() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = synthetic_npy();
+    let params = json!({"width": 1280, "height": 720, "samples": 16, "cell_size": 30.0, "mesh_max_vertices": 20000});
+    let flags = ["--threads", "2", "--max-attempts", "2"];
+    let client = reqwest::Client::new();
+    let submit = |addr: String| {
+        let client = client.clone();
+        let input = input.clone();
+        let params = params.clone();
+        async move {
+            let form = reqwest::multipart::Form::new()
+                .text("params", params.to_string())
+                .part(
+                    "dem",
+                    reqwest::multipart::Part::bytes(input).file_name("terrain.npy"),
+                );
+            let resp = client
+                .post(format!("http://{addr}/v1/snow-terrain"))
+                .multipart(form)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(resp.status().as_u16(), 202);
+            let job: Value = resp.json().await.unwrap();
+            job["id"].as_str().unwrap().to_string()
+        }
+    };
+
+    let (mut child, addr) = spawn_server_with(dir.path(), &flags);
+    let id = submit(addr.clone()).await;
+    kill_while_running(&client, &addr, &id, 1, &mut child).await;
+    // The restarted server re-queues it and runs it a second time; its worker dies again.
+    let (mut child, addr) = spawn_server_with(dir.path(), &flags);
+    kill_while_running(&client, &addr, &id, 2, &mut child).await;
+
+    // The third start would be over the limit: the job is given up.
+    let (mut child, addr) = spawn_server_with(dir.path(), &flags);
+    let t0 = Instant::now();
+    let done: Value = loop {
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{id}"))
+            .header("prefer", "wait=10")
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] != "queued" && j["status"] != "running" {
+            break j;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60), "{j}");
+    };
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(
+        done["error"]["type"], "https://phenomena.dev/problems/poisoned",
+        "{done}"
+    );
+    assert_eq!(
+        done["attempts"],
+        json!(2),
+        "not started a third time: {done}"
+    );
+    assert!(
+        done["outputs"].as_array().is_none_or(|o| o.is_empty()),
+        "{done}"
+    );
+    let metrics = client
+        .get(format!("http://{addr}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        metrics.contains("phenomena_jobs_poisoned_total{pipeline=\"snow-terrain\"} 1"),
+        "{metrics}"
+    );
+
+    // The server still runs work: the same request is a new job (the poisoned one is not
+    // reused), and it succeeds when nothing kills its worker.
+    let again = submit(addr.clone()).await;
+    assert_ne!(again, id);
+    let t0 = Instant::now();
+    let j: Value = loop {
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{again}"))
+            .header("prefer", "wait=30")
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] != "queued" && j["status"] != "running" {
+            break j;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(300), "{j}");
+    };
+    assert_eq!(j["status"], "succeeded", "{j}");
+    assert_eq!(j["attempts"], json!(1), "{j}");
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
+
 /// The job's outputs equal an offline CLI run of the same snow-terrain request.
 pub async fn assert_same_as_cli(
     client: &reqwest::Client,

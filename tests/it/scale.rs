@@ -163,6 +163,110 @@ fn metric(text: &str, name: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Poison jobs on Redis (issue 20): a worker dies mid-job; the replica that takes the job over
+/// finds it already started `--max-attempts` (here 1) times, so the job ends `failed` as
+/// poisoned, its id goes on the dead-letter list, and that replica goes on running other jobs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_whose_worker_dies_is_poisoned_and_dead_lettered() {
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = RedisPrefix::new();
+    let redis = redis_url();
+    let max = ["--max-attempts", "1"];
+    let api = Replica::spawn_env(dir.path(), &redis, &prefix.0, "api", "api-1", &max, &[]);
+    let mut first = Replica::spawn_env(
+        dir.path(),
+        &redis,
+        &prefix.0,
+        "worker",
+        "worker-1",
+        &max,
+        &[],
+    );
+    let c = reqwest::Client::new();
+
+    let input = synthetic_npy();
+    let params = json!({"width": 1280, "height": 720, "samples": 16, "cell_size": 30.0, "mesh_max_vertices": 20000});
+    let long = submit(&c, &api, &input, &params).await;
+    let id = long["id"].as_str().unwrap().to_string();
+    let t0 = Instant::now();
+    loop {
+        let j = job(&c, &api, &id).await;
+        if j["status"] == "running" && j["progress"].as_f64().unwrap() > 0.0 {
+            break;
+        }
+        assert!(
+            j["status"] == "queued" || j["status"] == "running",
+            "the job ended before the kill: {j}"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(120), "{j}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    first.child.kill().unwrap(); // SIGKILL
+    first.child.wait().unwrap();
+
+    // A second worker takes the orphaned entry over once its lease (3 s) runs out.
+    let second = Replica::spawn_env(
+        dir.path(),
+        &redis,
+        &prefix.0,
+        "worker",
+        "worker-2",
+        &max,
+        &[],
+    );
+    let done = wait_done(&c, &api, &id, Duration::from_secs(120)).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(
+        done["error"]["type"], "https://phenomena.dev/problems/poisoned",
+        "{done}"
+    );
+    assert_eq!(done["attempts"], json!(1), "{done}");
+    let m = c
+        .get(second.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert_eq!(
+        metric(
+            &m,
+            "phenomena_jobs_poisoned_total{pipeline=\"snow-terrain\"}"
+        ),
+        1.0,
+        "{m}"
+    );
+    let client = redis::Client::open(redis.as_str()).unwrap();
+    let mut con = client.get_connection().unwrap();
+    let dead: Vec<String> = redis::cmd("LRANGE")
+        .arg(format!("{}:dead", prefix.0))
+        .arg(0)
+        .arg(-1)
+        .query(&mut con)
+        .unwrap();
+    assert_eq!(dead, vec![id.clone()]);
+    let running: usize = redis::cmd("HLEN")
+        .arg(format!("{}:running", prefix.0))
+        .query(&mut con)
+        .unwrap();
+    assert_eq!(running, 0, "the poisoned job holds no running slot");
+
+    // The replica that poisoned it runs other work.
+    let small = synthetic_npy_of(96);
+    let p = json!({"width": 64, "height": 48, "samples": 1, "cell_size": 30.0});
+    let ok = submit(&c, &api, &small, &p).await;
+    let ok = wait_done(
+        &c,
+        &api,
+        ok["id"].as_str().unwrap(),
+        Duration::from_secs(120),
+    )
+    .await;
+    assert_eq!(ok["status"], "succeeded", "{ok}");
+    assert_eq!(ok["worker"], "worker-2", "{ok}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replicas_share_the_queue_and_a_killed_worker_loses_nothing() {
     let dir = tempfile::tempdir().unwrap();

@@ -11,13 +11,16 @@
 //! P:running       hash: running job id → owner (`replica#attempt`)
 //! P:queue         stream of job ids, consumer group `workers` — the work queue
 //! P:cancel:<id>   a cancel request for a running job
+//! P:dead          list: dead letters, ids of jobs failed as poisoned (started `max_attempts`
+//!                 times, their worker died each time); an id leaves it when its job expires
 //! P:progress, P:cancel, P:work   pub/sub channels (progress snapshots, cancel requests, new work)
 //! ```
 //!
 //! Delivery is at least once: a worker reads an entry with `XREADGROUP`, owns it while it
 //! heartbeats (`XCLAIM … JUSTID` every lease/3 resets the entry's idle time), and acknowledges it
 //! when the job ends. An entry idle for longer than the lease (its worker died) is taken over by
-//! another replica with `XAUTOCLAIM`, which runs the job again (`attempts` + 1). Every transition
+//! another replica with `XAUTOCLAIM`, which runs the job again (`attempts` + 1), unless it has
+//! already been started `max_attempts` times: then it ends `failed` as poisoned. Every transition
 //! is a compare-and-set on the record ([`scripts`]), so a slow worker that lost its job cannot
 //! overwrite the new owner's result; outputs are content-addressed blobs, so a run done twice
 //! writes the same bytes under the same names.

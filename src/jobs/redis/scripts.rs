@@ -73,6 +73,31 @@ return 1
     )
 });
 
+/// A job started `max_attempts` times whose worker died in each attempt ends failed (poisoned)
+/// instead of starting again, and its id goes on the dead-letter list `P:dead`. ARGV: prefix, id,
+/// old record, new record, stream entry, request key, finished (ms). Returns 1, or 0 when the
+/// record changed meanwhile.
+pub(super) static POISON: LazyLock<Script> = LazyLock::new(|| {
+    Script::new(
+        r#"
+local p, id = ARGV[1], ARGV[2]
+if redis.call('GET', p .. ':job:' .. id) ~= ARGV[3] then return 0 end
+redis.call('SET', p .. ':job:' .. id, ARGV[4])
+redis.call('HDEL', p .. ':running', id)
+redis.call('SREM', p .. ':queued', id)
+redis.call('XACK', p .. ':queue', 'workers', ARGV[5])
+redis.call('XDEL', p .. ':queue', ARGV[5])
+redis.call('ZADD', p .. ':done', ARGV[7], id)
+redis.call('DEL', p .. ':snap:' .. id, p .. ':cancel:' .. id)
+if redis.call('GET', p .. ':key:' .. ARGV[6]) == id then
+  redis.call('DEL', p .. ':key:' .. ARGV[6])
+end
+redis.call('RPUSH', p .. ':dead', id)
+return 1
+"#,
+    )
+});
+
 /// A run interrupted by shutdown goes back to the queue (a new stream entry, so any replica takes
 /// it at once). ARGV: prefix, id, old record, new record, owner, stream entry. Returns 1 or 0.
 pub(super) static REQUEUE: LazyLock<Script> = LazyLock::new(|| {
@@ -135,6 +160,7 @@ local p, id = ARGV[1], ARGV[2]
 redis.call('DEL', p .. ':job:' .. id, p .. ':snap:' .. id, p .. ':cancel:' .. id)
 redis.call('ZREM', p .. ':jobs', id)
 redis.call('ZREM', p .. ':done', id)
+redis.call('LREM', p .. ':dead', 0, id)
 if redis.call('GET', p .. ':key:' .. ARGV[3]) == id then
   redis.call('DEL', p .. ':key:' .. ARGV[3])
 end

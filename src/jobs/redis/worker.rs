@@ -11,7 +11,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::Instrument;
 
 use super::{backend_err, json_err, scripts, ProgressMsg, RedisJobs, GROUP};
-use crate::jobs::exec::execute;
+use crate::jobs::exec::{execute, poison};
 use crate::jobs::{CancelReason, JobBackend, JobRecord, JobsError, Live, Status};
 
 /// How long an idle slot waits before looking again when no new-work notice arrives (covers
@@ -124,6 +124,36 @@ impl RedisJobs {
             // A running job reaches us only through XAUTOCLAIM: its worker died.
             if !matches!(rec.status, Status::Queued | Status::Running) {
                 self.drop_entry(&c.entry).await?;
+                return Ok(None);
+            }
+            if rec.attempts >= self.inner.cfg.max_attempts {
+                let mut dead = rec.clone();
+                poison(&mut dead, self.inner.cfg.max_attempts);
+                let dead_raw = serde_json::to_string(&dead).map_err(json_err)?;
+                let ok: i64 = scripts::POISON
+                    .arg(self.inner.keys.prefix())
+                    .arg(&c.job)
+                    .arg(&raw)
+                    .arg(&dead_raw)
+                    .arg(&c.entry)
+                    .arg(&dead.key)
+                    .arg(dead.finished_at.map_or(0, |t| t.timestamp_millis()))
+                    .invoke_async(&mut self.con())
+                    .await
+                    .map_err(backend_err)?;
+                if ok != 1 {
+                    continue;
+                }
+                tracing::error!(job = %c.job, attempts = dead.attempts, "job poisoned: its worker died in every attempt; moved to the dead-letter list");
+                let m = &self.inner.exec.metrics;
+                m.jobs_finished
+                    .with_label_values(&[dead.pipeline.as_str(), dead.status.as_str()])
+                    .inc();
+                m.jobs_poisoned
+                    .with_label_values(&[dead.pipeline.as_str()])
+                    .inc();
+                self.inner.hooks.finished(&dead).await;
+                self.publish(&dead.id, &dead.snapshot()).await?;
                 return Ok(None);
             }
             let mut new = rec.clone();
