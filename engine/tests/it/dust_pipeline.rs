@@ -301,6 +301,7 @@ pub(crate) fn armadillo_grid(min_triangles: usize) -> phenomena_engine::geom::Me
         first_triangle: 0,
         triangle_count: m.triangles.len(),
         base_color: [0.5, 0.5, 0.5, 1.0],
+        texture: None,
     }];
     m
 }
