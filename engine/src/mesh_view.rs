@@ -141,8 +141,10 @@ const TALL_MARGIN: f32 = 1.2;
 ///    such as a head or a face, or a figure whose side is about as broad as its foot), and only
 ///    the other one makes it the tallest way up by [`TALL_MARGIN`]: a scanned figure or statue
 ///    is taller than it is wide, and lying on its side it is longer than it is tall. A scene
-///    that is wider than tall either way keeps the default.
-pub fn other_up_reason(here: f64, there: f64, e: [f32; 3]) -> Option<String> {
+///    that is wider than tall either way keeps the default. Only for `scan` formats (PLY, the
+///    scanners' format): a CAD part in STL or OBJ has no "standing" shape (an engine's cylinder
+///    head in `occt-misc` was stood on its end by this rule), and its file's axes are meant.
+pub fn other_up_reason(here: f64, there: f64, e: [f32; 3], scan: bool) -> Option<String> {
     if there > AUTO_UP_MARGIN * here {
         return Some(format!(
             "it stands on {:.1}× the ground area that way",
@@ -152,7 +154,7 @@ pub fn other_up_reason(here: f64, there: f64, e: [f32; 3]) -> Option<String> {
     let ambiguous = here <= AUTO_UP_MARGIN * there;
     let widest_now = e[0].max(e[2]);
     let widest_there = e[0].max(e[1]);
-    if ambiguous && e[2] > TALL_MARGIN * widest_there && e[1] <= TALL_MARGIN * widest_now {
+    if scan && ambiguous && e[2] > TALL_MARGIN * widest_there && e[1] <= TALL_MARGIN * widest_now {
         return Some(format!(
             "no flat base either way, and it stands {:.1}× taller than wide that way",
             e[2] / widest_there.max(1e-9)
@@ -266,7 +268,8 @@ impl MeshView {
             let e = mesh
                 .bounds()
                 .map_or([0.0; 3], |(lo, hi)| [0, 1, 2].map(|k| hi[k] - lo[k]));
-            if let Some(why) = other_up_reason(here, there, e) {
+            let scan = matches!(format, Some(MeshFormat::Ply));
+            if let Some(why) = other_up_reason(here, there, e, scan) {
                 rotate(&mut mesh, other);
                 let (from, to) = if zup_default { ("Z", "Y") } else { ("Y", "Z") };
                 mesh.notes.push(format!(
@@ -301,5 +304,29 @@ impl MeshView {
             .map(|(lo, hi)| (lo.map(f64::from), hi.map(f64::from)));
         self.camera
             .camera(bounds, f64::from(width) / f64::from(height))
+    }
+}
+
+#[cfg(test)]
+mod up_tests {
+    use super::other_up_reason;
+
+    #[test]
+    fn other_up_only_when_it_stands_better_or_a_scan_stands_taller() {
+        // Twice the ground area (and a bit): taken, for any format.
+        assert!(other_up_reason(0.1, 0.25, [1.0, 1.0, 1.0], false).is_some());
+        assert!(other_up_reason(0.1, 0.19, [1.0, 1.0, 1.0], false).is_none());
+        // No flat base either way; lying (extent z 3 along the file's z, 1 tall now).
+        let lying = [1.0, 1.0, 3.0];
+        assert!(other_up_reason(0.1, 0.12, lying, true).is_some());
+        assert!(
+            other_up_reason(0.1, 0.12, lying, false).is_none(),
+            "not for CAD formats"
+        );
+        // Already tall, or wide both ways: kept.
+        assert!(other_up_reason(0.1, 0.12, [1.0, 3.0, 3.5], true).is_none());
+        assert!(other_up_reason(0.1, 0.12, [3.0, 1.0, 3.0], true).is_none());
+        // One way clearly better: the tall rule does not overrule the ground.
+        assert!(other_up_reason(0.3, 0.1, lying, true).is_none());
     }
 }

@@ -9,8 +9,9 @@
 //! **Preview** (`fibers.png`): the atlas drawn to be looked at, not the raw textures (those are
 //! in `dusty.glb`, one per shell): a fibre texture is mostly transparent, and 32 of them at full
 //! size made a 10 MB image that showed a checkerboard. Each cell is the top-left 128² texels of
-//! its shell at full resolution (single fibres stay sharp), fibres in the dust colour × their
-//! brightness over a dark background, opaque; under 1 MB at the defaults (32 shells).
+//! its shell at full resolution (single fibres stay sharp), fibres in the dust colour shaded by
+//! their brightness as the renderer does, their opacity doubled for the eye, over a dark
+//! background, opaque; under 1 MB at the defaults (32 shells).
 //!
 //! **Shell meshes.** Layer i covers the triangles that reach it ([`super::shells::layer`]), its
 //! vertices raised along the normal by (i / shells)·`max_thickness`·D, with the base normals and
@@ -159,9 +160,13 @@ impl TextureAtlas {
                     } else {
                         (0.0, 0.0)
                     };
+                    // Contrast for the eye: the fibre's colour as the renderer's albedo rule
+                    // (DEPTH_SHADE), its opacity doubled (a single texel is faint by design).
+                    let shade = 1.0 - super::render::DEPTH_SHADE * (1.0 - g);
+                    let a = (2.0 * a).min(1.0);
                     let o = ((y0 + y) * w + x0 + x) * 4;
                     for c in 0..3 {
-                        let v = bg[c] + (dust[c] * g - bg[c]) * a;
+                        let v = bg[c] + (dust[c] * shade - bg[c]) * a;
                         data[o + c] = (v + 0.5).clamp(0.0, 255.0) as u8;
                     }
                 }

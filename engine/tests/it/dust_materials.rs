@@ -209,7 +209,12 @@ fn dusty_glb_keeps_the_input_textures_and_validates() {
     assert_eq!(report["input"]["textures"].as_array().unwrap().len(), 4);
     // Every file the OBJ names was found (an up-axis note may stand there).
     let notes = report["input"]["notes"].as_array().unwrap();
-    assert!(notes.iter().all(|n| n.as_str().unwrap().starts_with("up axis")), "{notes:?}");
+    assert!(
+        notes
+            .iter()
+            .all(|n| n.as_str().unwrap().starts_with("up axis")),
+        "{notes:?}"
+    );
 }
 
 #[test]
