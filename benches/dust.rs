@@ -70,6 +70,7 @@ fn armadillo_grid(min_vertices: usize, min_triangles: usize) -> Mesh {
         first_triangle: 0,
         triangle_count: m.triangles.len(),
         base_color: [0.5, 0.5, 0.5, 1.0],
+        texture: None,
     }];
     m
 }

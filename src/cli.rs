@@ -166,7 +166,18 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
         .build()?;
-    let result = pool.install(|| set.run(name, &params, &input, filename.as_deref(), &ctl));
+    // The mesh pipelines get the files the mesh refers to (an OBJ's material libraries and
+    // textures, a .gltf's buffers and images) read from beside the input, as auxiliary inputs.
+    let sidecars = if matches!(name, "snow-cover" | "dust") {
+        let dir = args.input.parent().map(PathBuf::from).unwrap_or_default();
+        phenomena_engine::formats::mesh::gather_sidecars(&input, filename.as_deref(), &mut |rel| {
+            std::fs::read(dir.join(rel)).ok()
+        })
+    } else {
+        Vec::new()
+    };
+    let result = pool
+        .install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &sidecars, &ctl));
     bar.finish_and_clear();
     let outputs = match result {
         Ok(o) => o,

@@ -233,12 +233,13 @@ function pipelineTab(panel, name, spec) {
     };
   }
 
-  // Dust's close-up: the orbit camera at a tenth of the mesh's size, so the fibres show.
+  // Dust's close-up (`close_up`): the orbit camera at a tenth of the mesh's size from the
+  // dustiest point the far view sees, so single fibres show.
   let closeUp = null;
   if (cfg.closeUp) {
     closeUp = el("button", {
       type: "button", class: "secondary", id: `closeup-${name}`, "aria-pressed": "false", disabled: true,
-      title: "Render from a camera at a tenth of the mesh's size from its centre (the far view stays beside it)",
+      title: "Render from a camera at a tenth of the mesh's size from the dustiest point in view (the far view stays beside it)",
       onclick: () => {
         state.closeUp = !state.closeUp;
         closeUp.setAttribute("aria-pressed", String(state.closeUp));
@@ -263,6 +264,7 @@ function pipelineTab(panel, name, spec) {
     if (state.closeUp && state.size) {
       const c = p.camera && !p.camera.eye ? p.camera : {};
       p.camera = { ...c, distance: Number((state.size / 10).toPrecision(4)) };
+      p.close_up = true;
     }
     return { params: p };
   }
@@ -351,7 +353,7 @@ function pipelineTab(panel, name, spec) {
         title: main ? "Drag (or use the arrow keys) to orbit the camera" : undefined,
       });
       if (main) orbit(image);
-      const cap = main && close ? `close-up render (distance ${sent.camera.distance} m)` : caption;
+      const cap = main && close ? `close-up render (${sent.camera.distance} m from the dustiest point in view)` : caption;
       views.append(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
         el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "full size")])));
     }

@@ -5,7 +5,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::formats::mesh::{decode_mesh, sniff_mesh, MeshFormat, MeshOptions, UpAxis};
+use crate::formats::mesh::{
+    decode_mesh_with, sniff_mesh, MeshFormat, MeshOptions, Sidecars, UpAxis,
+};
 use crate::geom::Mesh;
 use crate::params::{camera_spec, image_size, range, CameraSpec, OrbitDefaults, WireCamera};
 use crate::pipeline::Limits;
@@ -125,6 +127,42 @@ pub fn support_share(points: impl Iterator<Item = [f32; 3]> + Clone) -> f64 {
     area / foot
 }
 
+/// How much taller than its widest horizontal extent a model must stand in the other convention
+/// for [`other_up_reason`]'s second rule.
+const TALL_MARGIN: f32 = 1.2;
+
+/// Why the other up convention than the reader's default should be taken, or `None`: `here` and
+/// `there` are the [`support_share`]s of the two conventions, `e` the mesh's extents (x, y, z) in
+/// the default one (so the other makes `e[2]` the height).
+///
+/// 1. It stands on the ground [`AUTO_UP_MARGIN`] times better (a table, a room, a statue on its
+///    plinth; the same scene on its side touches the ground along a line).
+/// 2. Neither stands clearly better (within that margin both ways: a scan with no flat base,
+///    such as a head or a face, or a figure whose side is about as broad as its foot), and only
+///    the other one makes it the tallest way up by [`TALL_MARGIN`]: a scanned figure or statue
+///    is taller than it is wide, and lying on its side it is longer than it is tall. A scene
+///    that is wider than tall either way keeps the default. Only for `scan` formats (PLY, the
+///    scanners' format): a CAD part in STL or OBJ has no "standing" shape (an engine's cylinder
+///    head in `occt-misc` was stood on its end by this rule), and its file's axes are meant.
+pub fn other_up_reason(here: f64, there: f64, e: [f32; 3], scan: bool) -> Option<String> {
+    if there > AUTO_UP_MARGIN * here {
+        return Some(format!(
+            "it stands on {:.1}× the ground area that way",
+            there / here.max(1e-9)
+        ));
+    }
+    let ambiguous = here <= AUTO_UP_MARGIN * there;
+    let widest_now = e[0].max(e[2]);
+    let widest_there = e[0].max(e[1]);
+    if scan && ambiguous && e[2] > TALL_MARGIN * widest_there && e[1] <= TALL_MARGIN * widest_now {
+        return Some(format!(
+            "no flat base either way, and it stands {:.1}× taller than wide that way",
+            e[2] / widest_there.max(1e-9)
+        ));
+    }
+    None
+}
+
 /// The validated view (serialised flat into the pipeline's canonical parameters).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MeshView {
@@ -137,7 +175,9 @@ pub struct MeshView {
     pub camera: CameraSpec,
     /// Up axis of the input; given, it applies to every format (glTF too). Default (null): the
     /// reader's convention (Z for STL/PLY, Y for OBJ and glTF) unless the other one stands on the
-    /// ground at least twice as well ([`support_share`]).
+    /// ground at least twice as well ([`support_share`]) or, neither standing clearly better,
+    /// only the other makes the model taller than wide ([`other_up_reason`]); a turned model
+    /// gets a note in the report.
     pub up_axis: Option<UpAxisParam>,
     /// Sun for shading, compass azimuth degrees, 0–360. Default 150.
     pub sun_azimuth_deg: f64,
@@ -179,6 +219,18 @@ impl MeshView {
         filename: Option<&str>,
         limits: &Limits,
     ) -> Result<Mesh, InputError> {
+        self.decode_with(bytes, filename, &[], limits)
+    }
+
+    /// [`MeshView::decode`] with the files the mesh refers to (OBJ material libraries and
+    /// textures, external glTF buffers and images; see [`Sidecars`]), as (relative path, bytes).
+    pub fn decode_with(
+        &self,
+        bytes: &[u8],
+        filename: Option<&str>,
+        sidecars: &[(String, Vec<u8>)],
+        limits: &Limits,
+    ) -> Result<Mesh, InputError> {
         let up = self.up_axis.map(|u| match u {
             UpAxisParam::Y => UpAxis::Y,
             UpAxisParam::Z => UpAxis::Z,
@@ -187,8 +239,9 @@ impl MeshView {
             max_triangles: limits.max_input_triangles,
             max_vertices: limits.max_input_triangles.saturating_mul(3),
             up_axis: up,
+            ..MeshOptions::default()
         };
-        let mut mesh = decode_mesh(bytes, filename, &opts)?;
+        let mut mesh = decode_mesh_with(bytes, filename, &opts, Sidecars(sidecars))?;
         let format = sniff_mesh(bytes, filename);
         let gltf = matches!(format, Some(MeshFormat::Gltf | MeshFormat::Glb));
         // Z-up → Y-up: (x, y, z) → (x, z, −y), and back; proper rotations (winding kept).
@@ -208,15 +261,21 @@ impl MeshView {
         }
         if up.is_none() {
             // The other convention than the reader's default (glTF, OBJ: Y-up; STL, PLY: Z-up).
-            let other = if matches!(format, Some(MeshFormat::Stl | MeshFormat::Ply)) {
-                y_from_z
-            } else {
-                z_to_y
-            };
+            let zup_default = matches!(format, Some(MeshFormat::Stl | MeshFormat::Ply));
+            let other = if zup_default { y_from_z } else { z_to_y };
             let here = support_share(mesh.positions.iter().copied());
             let there = support_share(mesh.positions.iter().map(|&p| other(p)));
-            if there > AUTO_UP_MARGIN * here {
+            let e = mesh
+                .bounds()
+                .map_or([0.0; 3], |(lo, hi)| [0, 1, 2].map(|k| hi[k] - lo[k]));
+            let scan = matches!(format, Some(MeshFormat::Ply));
+            if let Some(why) = other_up_reason(here, there, e, scan) {
                 rotate(&mut mesh, other);
+                let (from, to) = if zup_default { ("Z", "Y") } else { ("Y", "Z") };
+                mesh.notes.push(format!(
+                    "up axis: the file's {to} was taken as up instead of the {from} its format \
+                     suggests ({why}); pass up_axis to choose"
+                ));
             }
         }
         Ok(mesh)
@@ -245,5 +304,29 @@ impl MeshView {
             .map(|(lo, hi)| (lo.map(f64::from), hi.map(f64::from)));
         self.camera
             .camera(bounds, f64::from(width) / f64::from(height))
+    }
+}
+
+#[cfg(test)]
+mod up_tests {
+    use super::other_up_reason;
+
+    #[test]
+    fn other_up_only_when_it_stands_better_or_a_scan_stands_taller() {
+        // Twice the ground area (and a bit): taken, for any format.
+        assert!(other_up_reason(0.1, 0.25, [1.0, 1.0, 1.0], false).is_some());
+        assert!(other_up_reason(0.1, 0.19, [1.0, 1.0, 1.0], false).is_none());
+        // No flat base either way; lying (extent z 3 along the file's z, 1 tall now).
+        let lying = [1.0, 1.0, 3.0];
+        assert!(other_up_reason(0.1, 0.12, lying, true).is_some());
+        assert!(
+            other_up_reason(0.1, 0.12, lying, false).is_none(),
+            "not for CAD formats"
+        );
+        // Already tall, or wide both ways: kept.
+        assert!(other_up_reason(0.1, 0.12, [1.0, 3.0, 3.5], true).is_none());
+        assert!(other_up_reason(0.1, 0.12, [3.0, 1.0, 3.0], true).is_none());
+        // One way clearly better: the tall rule does not overrule the ground.
+        assert!(other_up_reason(0.3, 0.1, lying, true).is_none());
     }
 }

@@ -352,7 +352,8 @@ pub fn decode_with_aux(
             Ok(Job::SnowTerrain { params: p, dem })
         }
         Params::SnowCover(p) => {
-            let mesh = snow_cover::run::decode(bytes, filename, &p, limits)?;
+            // snow_cover::run::decode, with the sidecar files the CLI passes as aux inputs.
+            let mesh = p.view.decode_with(bytes, filename, aux, limits)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
         Params::Cloud(p) => {
@@ -389,7 +390,7 @@ pub fn decode_with_aux(
             })
         }
         Params::Dust(p) => {
-            let mesh = dust::run::decode(bytes, filename, &p, limits)?;
+            let mesh = dust::run::decode_with(bytes, filename, aux, &p, limits)?;
             Ok(Job::Dust { params: p, mesh })
         }
     }

@@ -6,6 +6,13 @@
 //! each `texture_size`² texels, 8-bit grey + alpha with *straight* grey = the fibre's brightness
 //! and alpha = its coverage (the textures of [`super::fibers`]). Unused cells are transparent.
 //!
+//! **Preview** (`fibers.png`): the atlas drawn to be looked at, not the raw textures (those are
+//! in `dusty.glb`, one per shell): a fibre texture is mostly transparent, and 32 of them at full
+//! size made a 10 MB image that showed a checkerboard. Each cell is the top-left 128² texels of
+//! its shell at full resolution (single fibres stay sharp), fibres in the dust colour shaded by
+//! their brightness as the renderer does, their opacity doubled for the eye, over a dark
+//! background, opaque; under 1 MB at the defaults (32 shells).
+//!
 //! **Shell meshes.** Layer i covers the triangles that reach it ([`super::shells::layer`]), its
 //! vertices raised along the normal by (i / shells)·`max_thickness`·D, with the base normals and
 //! texture coordinates in tiles: the mesh's UVs rescaled, or box-projected UVs
@@ -35,6 +42,7 @@ use super::render::Shells;
 use super::shells::{layer, layer_fraction};
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::encode_gray_alpha8;
+use crate::render::image::RgbaImage;
 
 /// The shell textures as one 8-bit grey + alpha atlas (module doc).
 #[derive(Debug, Clone, PartialEq)]
@@ -106,11 +114,83 @@ impl TextureAtlas {
         out
     }
 
-    /// `fibers.png`.
+    /// The atlas itself (grey + alpha, every texel of every shell) as PNG; `dusty.glb` embeds
+    /// the same textures per shell.
     pub fn png(&self) -> Vec<u8> {
         encode_gray_alpha8(self.width() as u32, self.height() as u32, &self.data)
     }
+
+    /// `fibers.png`, the atlas as a picture to look at (module doc, *Preview*): per shell, its
+    /// top-left `min(side, PREVIEW_CELL)`² texels at full resolution, the fibres in `dust_color`
+    /// (sRGB bytes) scaled by their brightness over [`PREVIEW_BACKGROUND`], opaque, cells in the
+    /// atlas's grid with [`PREVIEW_GAP`] pixels between them.
+    pub fn preview(&self, dust_color: [u8; 3]) -> RgbaImage {
+        let cell = self.side.min(PREVIEW_CELL);
+        let pitch = cell + PREVIEW_GAP;
+        let (w, h) = (
+            self.columns * pitch - PREVIEW_GAP,
+            self.rows * pitch - PREVIEW_GAP,
+        );
+        let mut data = vec![0u8; w * h * 4];
+        for px in data.chunks_exact_mut(4) {
+            px.copy_from_slice(&[
+                PREVIEW_GAP_COLOR[0],
+                PREVIEW_GAP_COLOR[1],
+                PREVIEW_GAP_COLOR[2],
+                255,
+            ]);
+        }
+        let aw = self.width();
+        let bg = PREVIEW_BACKGROUND.map(f32::from);
+        let dust = dust_color.map(f32::from);
+        for k in 0..self.columns * self.rows {
+            let (x0, y0) = ((k % self.columns) * pitch, (k / self.columns) * pitch);
+            let (sx, sy) = (
+                (k % self.columns) * self.side,
+                (k / self.columns) * self.side,
+            );
+            for y in 0..cell {
+                for x in 0..cell {
+                    let (g, a) = if k < self.count {
+                        let i = ((sy + y) * aw + sx + x) * 2;
+                        (
+                            f32::from(self.data[i]) / 255.0,
+                            f32::from(self.data[i + 1]) / 255.0,
+                        )
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    // Contrast for the eye: the fibre's colour as the renderer's albedo rule
+                    // (DEPTH_SHADE), its opacity doubled (a single texel is faint by design).
+                    let shade = 1.0 - super::render::DEPTH_SHADE * (1.0 - g);
+                    let a = (2.0 * a).min(1.0);
+                    let o = ((y0 + y) * w + x0 + x) * 4;
+                    for c in 0..3 {
+                        let v = bg[c] + (dust[c] * shade - bg[c]) * a;
+                        data[o + c] = (v + 0.5).clamp(0.0, 255.0) as u8;
+                    }
+                }
+            }
+        }
+        RgbaImage {
+            width: w as u32,
+            height: h as u32,
+            data,
+        }
+    }
 }
+
+/// Largest side of a shell's cell in the `fibers.png` preview, texels (a full-resolution crop).
+pub const PREVIEW_CELL: usize = 128;
+
+/// Pixels between the preview's cells.
+pub const PREVIEW_GAP: usize = 4;
+
+/// The preview's background under the fibres, sRGB (a dark slate, so light dust shows).
+pub const PREVIEW_BACKGROUND: [u8; 3] = [38, 40, 46];
+
+/// The preview's gaps between cells, sRGB.
+pub const PREVIEW_GAP_COLOR: [u8; 3] = [110, 112, 118];
 
 /// One shell's mesh for the GLB.
 struct ShellMesh {

@@ -7,8 +7,8 @@
 //! reads as fibre in a close-up and as a soft layer from afar). Mesh UVs are laid out for the
 //! mesh's own texture, at an unknown scale, so they are rescaled: uv′ = uv · m / `fiber_tile` with
 //! m = √(Σ world area / Σ UV area) the mesh's mean metres per UV unit. The layout (seams,
-//! orientation) is the mesh's; only the scale is ours. A UV set with (almost) no area falls back
-//! to tri-planar.
+//! orientation) is the mesh's; only the scale is ours. A UV set with (almost) no area, or with
+//! none on a tenth of the surface, falls back to tri-planar.
 //!
 //! **Tri-planar** (our reading of "tri-planar projection in object space"): the point q − lo (lo:
 //! the mesh's bounding-box minimum, so the coordinates stay small) is projected on the three axis
@@ -54,16 +54,25 @@ impl Mapping {
         else {
             return triplanar;
         };
-        let (mut world, mut uv_area) = (0.0f64, 0.0f64);
+        let (mut world, mut uv_area, mut flat) = (0.0f64, 0.0f64, 0.0f64);
         for (t, tri) in mesh.triangles.iter().enumerate() {
             let f = mesh.face_normal(t);
-            world += 0.5 * f64::from(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            let w = 0.5 * f64::from(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            world += w;
             let [a, b, c] = tri.map(|i| uvs[i as usize]);
             let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
             uv_area += 0.5 * f64::from(cross.abs());
+            if cross == 0.0 {
+                flat += w;
+            }
         }
-        // (Almost) no UV area: the UVs cannot carry a texture.
-        if !(uv_area > 1e-9 * world.max(1e-30) && world > 0.0 && uv_area.is_finite()) {
+        // (Almost) no UV area, or a tenth of the surface without any (parts without UVs, which
+        // the reader gives (0, 0) beside textured ones): the UVs cannot carry the fibres.
+        if !(uv_area > 1e-9 * world.max(1e-30)
+            && world > 0.0
+            && uv_area.is_finite()
+            && flat <= 0.1 * world)
+        {
             return triplanar;
         }
         let k = ((world / uv_area).sqrt() / f64::from(tile)) as f32;

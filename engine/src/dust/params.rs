@@ -53,6 +53,7 @@ pub struct WireParams {
     pub fiber_decay: Option<f32>,
     pub fiber_opacity: Option<f32>,
     pub dust_color: Option<String>,
+    pub close_up: Option<bool>,
 }
 
 /// Validated parameters of one `dust` run.
@@ -108,6 +109,11 @@ pub struct Params {
     /// Dust colour, sRGB hex. Default `#e7e2da` (light grey-beige house dust; the fibres'
     /// brightness darkens it, see [`super::render::DEPTH_SHADE`]).
     pub dust_color: String,
+    /// Close-up: the orbit camera circles the dustiest point of the surface the default view
+    /// sees (see [`super::run::close_up_target`]) instead of the mesh's centre, at
+    /// `camera.distance` from it (default: 1/10 of the mesh's bounding-box diagonal), so single
+    /// fibres show. Needs the orbit camera (not eye/target). Default false.
+    pub close_up: bool,
 }
 
 fn unit3(field: &str, v: Option<[f32; 3]>, default: [f32; 3]) -> Result<[f32; 3], ParamError> {
@@ -181,6 +187,13 @@ impl Params {
             Some(t) => Some(range("fiber_tile", Some(t), 1.0, 1e-6, 1e6)?),
             None => None,
         };
+        let close_up = w.close_up.unwrap_or(false);
+        if close_up && matches!(view.camera, crate::params::CameraSpec::LookAt { .. }) {
+            return Err(ParamError::new(
+                "close_up",
+                "needs the orbit camera (azimuth_deg/elevation_deg/distance), not eye/target",
+            ));
+        }
         Ok(Params {
             view,
             seed: w.seed.unwrap_or(0),
@@ -202,6 +215,7 @@ impl Params {
             fiber_decay: range("fiber_decay", w.fiber_decay, 0.02, 0.0, 1.0)?,
             fiber_opacity: range("fiber_opacity", w.fiber_opacity, 0.35, 0.0, 1.0)?,
             dust_color,
+            close_up,
         })
     }
 
@@ -219,6 +233,11 @@ impl Params {
     /// The dust colour, linear RGB (validated in [`Params::from_json`]; grey if it were not).
     pub fn dust_color_linear(&self) -> [f32; 3] {
         parse_hex_color("dust_color", &self.dust_color).map_or([0.5; 3], |c| c.map(srgb8_to_linear))
+    }
+
+    /// The dust colour, sRGB bytes (grey if it were not valid).
+    pub fn dust_color_srgb8(&self) -> [u8; 3] {
+        parse_hex_color("dust_color", &self.dust_color).unwrap_or([128; 3])
     }
 
     /// The fibre parameters (SPEC §4 step 3).
@@ -265,6 +284,10 @@ mod tests {
             (json!({"texture_size": 4096, "shells": 8}), "texture_size"),
             (json!({"fibers": 1_000_000, "fiber_length": 100}), "fibers"),
             (json!({"fibres": 3}), "fibres"),
+            (
+                json!({"close_up": true, "camera": {"eye": [0, 1, 2], "target": [0, 0, 0]}}),
+                "close_up",
+            ),
         ] {
             let e = Params::from_json(&v, &l).unwrap_err();
             assert_eq!(e.field, field, "{v}: {e}");

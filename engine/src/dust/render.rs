@@ -261,8 +261,10 @@ pub fn shell_overlay(
 /// the dust colour: albedo = `dust_color` · (1 − DEPTH_SHADE · (1 − g)). Our reading: the
 /// brightness is relative (a fibre deeper in the texture is darker than the dust colour, at most
 /// by half), so dust keeps the colour the user asked for instead of turning into dark dirt where
-/// fibres are dim.
-pub const DEPTH_SHADE: f32 = 1.0;
+/// fibres are dim. (It was 1.0, which contradicted "at most by half" and made the dust of the
+/// default view a darker grey than a grey model: dim fibres averaged to ~0.35 of the dust
+/// colour; issue 18, "looks like a plain grey model".)
+pub const DEPTH_SHADE: f32 = 0.5;
 
 /// Self-shadowing inside the dust: a fibre of layer i lies under (noise × D − i / shells) of
 /// dust thickness (as a fraction of `max_thickness`; 0 for the top layer), and its brightness is

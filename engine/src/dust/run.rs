@@ -27,6 +27,7 @@ use super::texture::ShellTexture;
 use crate::formats::png_write::encode_rgba;
 use crate::geom::Mesh;
 use crate::pipeline::Limits;
+use crate::render::camera::Camera;
 use crate::render::image::srgb_to_linear;
 use crate::render::mesh::{MeshColors, MeshInstance, MeshLighting, MeshRenderer};
 use crate::{Canceled, Control, InputError, Output};
@@ -44,7 +45,18 @@ pub fn decode(
     p: &Params,
     limits: &Limits,
 ) -> Result<Mesh, InputError> {
-    let mesh = p.view.decode(bytes, filename, limits)?;
+    decode_with(bytes, filename, &[], p, limits)
+}
+
+/// [`decode`] with the files the mesh refers to (see [`crate::formats::mesh::Sidecars`]).
+pub fn decode_with(
+    bytes: &[u8],
+    filename: Option<&str>,
+    sidecars: &[(String, Vec<u8>)],
+    p: &Params,
+    limits: &Limits,
+) -> Result<Mesh, InputError> {
+    let mesh = p.view.decode_with(bytes, filename, sidecars, limits)?;
     let tris = mesh.triangles.len().max(MAX_REFINED_TRIANGLES) as u64;
     let shell_tris = tris * u64::from(p.shells);
     if shell_tris > MAX_SHELL_TRIANGLES {
@@ -91,6 +103,30 @@ fn diagonal(mesh: &Mesh) -> f32 {
         .map(|(lo, hi)| (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt())
         .filter(|d| d.is_finite() && *d > 0.0)
         .unwrap_or(1.0)
+}
+
+/// The close-up's target ([`Params::close_up`]): of the vertices with at least 90 % of the
+/// largest D, the one nearest to `eye` (the default view's eye, so the point lies on the side
+/// that view sees); the mesh's centre when no vertex has dust.
+pub fn close_up_target(mesh: &Mesh, amount: &[f32], eye: [f64; 3]) -> [f64; 3] {
+    let max = amount.iter().copied().fold(0.0f32, f32::max);
+    let centre = mesh.bounds().map_or([0.0; 3], |(lo, hi)| {
+        [0, 1, 2].map(|k| 0.5 * (f64::from(lo[k]) + f64::from(hi[k])))
+    });
+    if max <= 0.0 {
+        return centre;
+    }
+    let mut best = (f64::INFINITY, centre);
+    for (p, &d) in mesh.positions.iter().zip(amount) {
+        if d >= 0.9 * max {
+            let q = p.map(f64::from);
+            let r2: f64 = (0..3).map(|k| (q[k] - eye[k]).powi(2)).sum();
+            if r2 < best.0 {
+                best = (r2, q);
+            }
+        }
+    }
+    best.1
 }
 
 /// Runs the pipeline on a decoded mesh.
@@ -161,12 +197,25 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
     };
     let (w, h) = (p.view.width, p.view.height);
     let light = p.view.lighting(&mesh);
-    let camera = p.view.camera_for(&mesh, w, h);
+    let mut camera = p.view.camera_for(&mesh, w, h);
+    if p.close_up {
+        if let crate::params::CameraSpec::Orbit {
+            azimuth_deg,
+            elevation_deg,
+            distance,
+            fov_deg,
+        } = p.view.camera
+        {
+            let target = close_up_target(&mesh, &amount, camera.eye);
+            let d = distance.unwrap_or(f64::from(diag) / 10.0);
+            camera = Camera::orbit(target, azimuth_deg, elevation_deg, d, fov_deg);
+        }
+    }
     let base = MeshInstance {
         positions: &mesh.positions,
         normals: Some(&normals),
         triangles: &mesh.triangles,
-        colors: MeshColors::PerPart(&mesh.parts),
+        colors: MeshColors::Materials(&mesh),
     };
     let view = MeshRenderer::new(&[base], &camera, &light, w, h, shells.bounds(), ctl)?;
     let overlay = shell_overlay(&view, &camera, &shells, ctl, (0.45, 0.75))?;
@@ -205,7 +254,7 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
     let t0 = Instant::now();
     let render_png = encode_rgba(&image);
     let amount_png = encode_rgba(&amount_image);
-    let fibers_png = atlas.png();
+    let fibers_png = encode_rgba(&atlas.preview(p.dust_color_srgb8()));
     let glb = dusty_glb(
         &shells,
         &atlas,
@@ -225,6 +274,9 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
             "bounds": input.bounds().map(|(lo, hi)| [lo, hi]),
             "has_normals": input.normals.is_some(),
             "has_uvs": input.uvs.is_some(),
+            "has_vertex_colors": input.colors.is_some(),
+            "textures": input.textures.iter().map(|t| json!({"name": t.name, "mime": t.mime, "width": t.width, "height": t.height})).collect::<Vec<_>>(),
+            "notes": input.notes,
         },
         "surface": {
             "vertices": mesh.positions.len(),
@@ -242,6 +294,7 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
             "texture_size": side,
             "per_shell": fiber_counts,
             "atlas": {"columns": atlas.columns, "rows": atlas.rows, "width": atlas.width(), "height": atlas.height()},
+            "preview_cell": atlas.side.min(super::export::PREVIEW_CELL),
         },
         "timings": timings.iter().map(|(s, ms)| json!({"stage": s, "ms": ms})).collect::<Vec<_>>(),
         "total_ms": t_all.elapsed().as_secs_f64() * 1e3,

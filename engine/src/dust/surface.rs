@@ -24,7 +24,8 @@
 //! one value per corner and could not be thinner under a table. [`refine`] splits edges longer
 //! than 1/[`EDGES_PER_DIAGONAL`] of the bounding-box diagonal (per part, by edge midpoints,
 //! crack-free: snow-cover's [`crate::snow_cover::shape::subdivide`]), up to
-//! [`MAX_REFINED_TRIANGLES`] triangles; normals and UVs are interpolated to the new vertices.
+//! [`MAX_REFINED_TRIANGLES`] triangles; normals, UVs and vertex colours are interpolated to the
+//! new vertices (textures and parts are shared).
 //! Finely tessellated meshes (the Stanford models) are left as they are.
 //!
 //! Known limitation: shells of two groups meeting at a crease part along it (each is offset along
@@ -78,6 +79,7 @@ pub fn refine(mesh: &mut Mesh, normals: &mut Vec<[f32; 3]>) {
         let before = tris.len();
         let budget = cap.saturating_sub(total - before);
         let uvs = &mut mesh.uvs;
+        let colors = &mut mesh.colors;
         crate::snow_cover::shape::subdivide_with(
             &mut mesh.positions,
             &mut tris,
@@ -89,6 +91,10 @@ pub fn refine(mesh: &mut Mesh, normals: &mut Vec<[f32; 3]>) {
                 if let Some(u) = uvs.as_mut() {
                     let (ui, uj) = (u[i as usize], u[j as usize]);
                     u.push([0.5 * (ui[0] + uj[0]), 0.5 * (ui[1] + uj[1])]);
+                }
+                if let Some(c) = colors.as_mut() {
+                    let (ci, cj) = (c[i as usize], c[j as usize]);
+                    c.push([0, 1, 2, 3].map(|k| 0.5 * (ci[k] + cj[k])));
                 }
             },
         );
@@ -228,6 +234,7 @@ pub fn crease_split(mesh: &Mesh, u: [f32; 3]) -> (Mesh, Vec<[f32; 3]>) {
     let cos_crease = CREASE_DEG.to_radians().cos();
     let mut positions = Vec::with_capacity(nv);
     let mut uvs = mesh.uvs.as_ref().map(|_| Vec::with_capacity(nv));
+    let mut colors = mesh.colors.as_ref().map(|_| Vec::with_capacity(nv));
     let mut normals = Vec::with_capacity(nv);
     // New vertex of each corner (triangle, corner index).
     let mut corner = vec![u32::MAX; mesh.triangles.len() * 3];
@@ -278,6 +285,9 @@ pub fn crease_split(mesh: &Mesh, u: [f32; 3]) -> (Mesh, Vec<[f32; 3]>) {
                     if let (Some(out), Some(src)) = (uvs.as_mut(), mesh.uvs.as_ref()) {
                         out.push(src[v]);
                     }
+                    if let (Some(out), Some(src)) = (colors.as_mut(), mesh.colors.as_ref()) {
+                        out.push(src[v]);
+                    }
                     normals.push([0.0f32; 3]);
                     roots.len() - 1
                 }
@@ -306,7 +316,10 @@ pub fn crease_split(mesh: &Mesh, u: [f32; 3]) -> (Mesh, Vec<[f32; 3]>) {
         triangles,
         normals: Some(normals.clone()),
         uvs,
+        colors,
+        textures: mesh.textures.clone(),
         parts: mesh.parts.clone(),
+        notes: mesh.notes.clone(),
     };
     (out, normals)
 }

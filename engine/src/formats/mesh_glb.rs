@@ -13,7 +13,9 @@
 //! renormalised to unit length; a zero normal becomes +Y), TEXCOORD_0 (float VEC2), COLOR_0
 //! (float VEC4, linear RGBA clamped to 0..1 per the glTF spec), the application-specific
 //! attributes (`_NAME`, float SCALAR) in the node's order, indices (u32), then the node's
-//! PNG texture if any (an `image/png` bufferView, sampler with REPEAT wrap and linear filters).
+//! PNG texture if any (an `image/png` bufferView, sampler with REPEAT wrap and linear filters) or
+//! its input texture (the image file as read, PNG or JPEG, once per file; a sampler with its wrap
+//! modes and mipmapped minification).
 //! Every bufferView starts on a 4-byte boundary. The container (chunk padding) is
 //! [`super::glb::glb_container`]'s. `asset.generator` is `"phenomena"`; `extras` goes on the root
 //! object.
@@ -23,17 +25,30 @@
 //! Panics on caller bugs: attribute arrays of another length than `positions`, or an index
 //! `≥ positions.len()`.
 
+use std::sync::Arc;
+
 use serde_json::{json, Value};
 
 use super::glb::glb_container;
-use crate::geom::mesh::Mesh;
+use crate::geom::mesh::{Mesh, Texture, TextureWrap};
 
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 const REPEAT: u32 = 10497;
+const CLAMP_TO_EDGE: u32 = 33071;
+const MIRRORED_REPEAT: u32 = 33648;
 const LINEAR: u32 = 9729;
+const LINEAR_MIPMAP_LINEAR: u32 = 9987;
+
+fn gl_wrap(w: TextureWrap) -> u32 {
+    match w {
+        TextureWrap::Repeat => REPEAT,
+        TextureWrap::Clamp => CLAMP_TO_EDGE,
+        TextureWrap::Mirror => MIRRORED_REPEAT,
+    }
+}
 
 /// One node of the output: a mesh in world space with one material.
 #[derive(Debug, Clone)]
@@ -80,6 +95,10 @@ pub struct GlbMaterial {
     /// A PNG embedded as the base colour texture (sRGB, per glTF), sampled with REPEAT wrap
     /// through `TEXCOORD_0`. Ignored when the node has no UVs. Default: none.
     pub texture_png: Option<Vec<u8>>,
+    /// An input texture ([`Texture::encoded`], PNG or JPEG) as the base colour texture, with its
+    /// wrap modes; embedded once per file however many nodes use it (same `Arc`). Used when
+    /// `texture_png` is none and the node has UVs. Default: none.
+    pub texture: Option<Arc<Texture>>,
 }
 
 impl Default for GlbMaterial {
@@ -92,6 +111,7 @@ impl Default for GlbMaterial {
             alpha_blend: false,
             double_sided: false,
             texture_png: None,
+            texture: None,
         }
     }
 }
@@ -131,9 +151,17 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
         doc["buffers"] = json!([{ "byteLength": b.bin.len() }]);
     }
     if !b.textures.is_empty() {
-        doc["samplers"] = json!([{
-            "magFilter": LINEAR, "minFilter": LINEAR, "wrapS": REPEAT, "wrapT": REPEAT
-        }]);
+        // Sampler 0 serves the generated textures; input textures add one per wrap pair.
+        let mut samplers = vec![
+            json!({"magFilter": LINEAR, "minFilter": LINEAR, "wrapS": REPEAT, "wrapT": REPEAT}),
+        ];
+        samplers.extend(b.samplers.iter().map(|w| {
+            json!({
+                "magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR,
+                "wrapS": gl_wrap(w[0]), "wrapT": gl_wrap(w[1])
+            })
+        }));
+        doc["samplers"] = json!(samplers);
         doc["images"] = json!(b.images);
         doc["textures"] = json!(b.textures);
     }
@@ -152,6 +180,10 @@ struct Builder {
     materials: Vec<Value>,
     images: Vec<Value>,
     textures: Vec<Value>,
+    /// Wrap pairs of the input textures' samplers (sampler i + 1).
+    samplers: Vec<[TextureWrap; 2]>,
+    /// Input textures already embedded: (the `Arc`'s address, texture index).
+    embedded: Vec<(usize, usize)>,
 }
 
 impl Builder {
@@ -273,6 +305,28 @@ impl Builder {
             self.textures
                 .push(json!({ "sampler": 0, "source": self.images.len() - 1 }));
             pbr["baseColorTexture"] = json!({ "index": self.textures.len() - 1, "texCoord": 0 });
+        } else if let (Some(tex), Some(_)) = (&m.texture, node.uvs) {
+            let key = Arc::as_ptr(tex) as usize;
+            let index = match self.embedded.iter().find(|(k, _)| *k == key) {
+                Some(&(_, i)) => i,
+                None => {
+                    let v = self.view(&tex.encoded, None);
+                    self.images
+                        .push(json!({ "bufferView": v, "mimeType": tex.mime }));
+                    let sampler = match self.samplers.iter().position(|w| *w == tex.wrap) {
+                        Some(k) => k + 1,
+                        None => {
+                            self.samplers.push(tex.wrap);
+                            self.samplers.len()
+                        }
+                    };
+                    self.textures
+                        .push(json!({ "sampler": sampler, "source": self.images.len() - 1 }));
+                    self.embedded.push((key, self.textures.len() - 1));
+                    self.textures.len() - 1
+                }
+            };
+            pbr["baseColorTexture"] = json!({ "index": index, "texCoord": 0 });
         }
         let name = if m.name.is_empty() {
             node.name
@@ -307,19 +361,23 @@ pub struct PartNode {
     pub triangles: Vec<[u32; 3]>,
     /// The part's base colour, linear RGBA.
     pub base_color: [f32; 4],
+    /// Per-vertex colours (linear RGBA) when the mesh has them.
+    pub colors: Option<Vec<[f32; 4]>>,
+    /// The part's base-colour texture, when it has one and the mesh has UVs.
+    pub texture: Option<Arc<Texture>>,
 }
 
 impl PartNode {
     /// A [`GlbNode`] borrowing this part, with a matte, double-sided material of the part's base
-    /// colour (alpha blended when its alpha is below 1). Input windings are not trusted, hence
-    /// double-sided.
+    /// colour and texture (alpha blended when its alpha is below 1) and its vertex colours as
+    /// `COLOR_0`. Input windings are not trusted, hence double-sided.
     pub fn node(&self) -> GlbNode<'_> {
         GlbNode {
             name: &self.name,
             positions: &self.positions,
             normals: self.normals.as_deref(),
             uvs: self.uvs.as_deref(),
-            colors: None,
+            colors: self.colors.as_deref(),
             triangles: &self.triangles,
             custom: &[],
             overlay: None,
@@ -328,6 +386,7 @@ impl PartNode {
                 base_color: self.base_color,
                 alpha_blend: self.base_color[3] < 1.0,
                 double_sided: true,
+                texture: self.texture.clone(),
                 ..GlbMaterial::default()
             },
         }
@@ -335,7 +394,7 @@ impl PartNode {
 }
 
 /// Split `mesh` into one [`PartNode`] per [`crate::geom::mesh::MeshPart`] (in part order), each
-/// keeping the normals and UVs the mesh has. Parts with no triangles come out empty (and
+/// keeping the normals, UVs, vertex colours and texture the mesh has. Parts with no triangles come out empty (and
 /// [`mesh_glb`] skips them). Triangles outside every part (none for a well-formed mesh) are
 /// dropped. Allocates about the mesh's size.
 pub fn scene_nodes(mesh: &Mesh) -> Vec<PartNode> {
@@ -376,6 +435,14 @@ pub fn scene_nodes(mesh: &Mesh) -> Vec<PartNode> {
                     .map(|u| used.iter().map(|&i| u[i as usize]).collect()),
                 triangles,
                 base_color: part.base_color,
+                colors: mesh
+                    .colors
+                    .as_ref()
+                    .map(|c| used.iter().map(|&i| c[i as usize]).collect()),
+                texture: part
+                    .texture
+                    .filter(|_| mesh.uvs.is_some())
+                    .and_then(|k| mesh.textures.get(k).cloned()),
             }
         })
         .collect()

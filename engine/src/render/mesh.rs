@@ -9,6 +9,14 @@
 //! renderer's sky gradient (zenith colour at the top of the image, horizon colour at the bottom)
 //! or a fixed RGBA.
 //!
+//! **Materials** ([`MeshColors::Materials`]): albedo = part base colour × vertex colour × the
+//! part's texture, glTF's rule. Textures are sampled bilinearly (sRGB texels to linear, wrap
+//! modes of the sampler) from a mip pyramid built when the renderer is set up (box-filtered
+//! halves averaged in linear light, 4/3 of the texture's texels); the level is log2 of the
+//! sample's footprint in texels, `view depth × pixel size × texel density / √|cos θ|`, with the
+//! triangle's texel density √(texel area / world area) (the same footprint rule as the dust
+//! shells). The texture's alpha is not used (surfaces are opaque).
+//!
 //! **Shadows**: an orthographic depth map along the sun direction covering the scene's extent
 //! across the sun (`shadow_map_size`² texels, square texels), filled by a scanline pass that keeps
 //! the largest depth toward the sun per texel centre — a max, so the result does not depend on
@@ -29,7 +37,8 @@
 //! pattern, identical bytes for any thread count (the shadow map is a max per texel).
 //!
 //! **Cost.** Setup allocates 24 B per vertex and 84 B per triangle (combined mesh, per-triangle
-//! normals and albedo; 72 B more per triangle while the shadow map is built), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
+//! normals and albedo; 72 B more per triangle while the shadow map is built; 32 B more per
+//! triangle and the mip pyramids when textured), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
 //! Shadow pass: O(bands × triangles) bounding-box tests plus the covered texels.
 
 use crate::geom::unit;
@@ -41,7 +50,8 @@ use super::camera::{cross, dot, normalize, sub, Camera};
 use super::image::RgbaImage;
 use super::raster::{render_adaptive, Fragment, Mesh as RMesh, Projection, Rasterizer, Sample};
 use crate::control::{Canceled, Control};
-use crate::geom::mesh::MeshPart;
+use crate::geom::mesh::{Mesh, MeshPart, Texture, TextureWrap};
+use crate::render::image::{linear_to_srgb8, srgb8_to_linear};
 
 /// Per-triangle or per-vertex surface colour (albedo, linear RGB 0..1).
 #[derive(Debug, Clone, Copy)]
@@ -53,6 +63,10 @@ pub enum MeshColors<'a> {
     /// The base colour (RGB) of the part each triangle lies in; triangles outside every part are
     /// mid grey.
     PerPart(&'a [MeshPart]),
+    /// The mesh's own materials (the instance's arrays are this mesh's or share its vertex and
+    /// triangle numbering): per part its base colour, times [`Mesh::colors`] per vertex, times
+    /// its texture looked up through [`Mesh::uvs`] (module doc, *Materials*).
+    Materials(&'a Mesh),
 }
 
 /// One triangle mesh of the scene, world space (metres, Y up).
@@ -131,6 +145,126 @@ pub fn frame_camera(
     )
 }
 
+/// A base-colour texture as the renderer samples it: the texture's sRGB texels and a mip
+/// pyramid of box-filtered halves (averaged in linear light).
+struct MipTexture {
+    /// (width, height, sRGB RGBA texels) from the full size down to 1 × 1.
+    levels: Vec<(usize, usize, Vec<[u8; 4]>)>,
+    wrap: [TextureWrap; 2],
+}
+
+impl MipTexture {
+    fn new(t: &Texture) -> Self {
+        let (w, h) = (t.width as usize, t.height as usize);
+        let mut levels = vec![(w, h, t.texels.clone())];
+        if t.texels.len() != w * h || w == 0 || h == 0 {
+            levels[0] = (1, 1, vec![[255; 4]]);
+        }
+        loop {
+            let (w, h, px) = &levels[levels.len() - 1];
+            let (w, h) = (*w, *h);
+            if w == 1 && h == 1 {
+                break;
+            }
+            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            let mut out = Vec::with_capacity(nw * nh);
+            for y in 0..nh {
+                for x in 0..nw {
+                    let mut acc = [0.0f32; 4];
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let p = px[(2 * y + dy).min(h - 1) * w + (2 * x + dx).min(w - 1)];
+                        for k in 0..3 {
+                            acc[k] += srgb8_to_linear(p[k]);
+                        }
+                        acc[3] += f32::from(p[3]);
+                    }
+                    out.push([
+                        linear_to_srgb8(acc[0] * 0.25),
+                        linear_to_srgb8(acc[1] * 0.25),
+                        linear_to_srgb8(acc[2] * 0.25),
+                        (acc[3] * 0.25 + 0.5) as u8,
+                    ]);
+                }
+            }
+            levels.push((nw, nh, out));
+        }
+        Self {
+            levels,
+            wrap: t.wrap,
+        }
+    }
+
+    /// Linear RGB at texture coordinates `uv` (glTF convention) on mip level `level` (0 = full
+    /// size; fractional levels blend the two nearest), bilinear within a level.
+    fn sample(&self, uv: [f32; 2], level: f32) -> [f32; 3] {
+        let top = (self.levels.len() - 1) as f32;
+        let level = if level.is_finite() {
+            level.clamp(0.0, top)
+        } else {
+            0.0
+        };
+        let l0 = level.floor() as usize;
+        let f = level - l0 as f32;
+        let a = self.bilinear(l0, uv);
+        if f > 1e-3 && l0 + 1 < self.levels.len() {
+            let b = self.bilinear(l0 + 1, uv);
+            [0, 1, 2].map(|k| a[k] + (b[k] - a[k]) * f)
+        } else {
+            a
+        }
+    }
+
+    fn bilinear(&self, level: usize, uv: [f32; 2]) -> [f32; 3] {
+        let (w, h, px) = &self.levels[level];
+        let (w, h) = (*w, *h);
+        let x = uv[0] * w as f32 - 0.5;
+        let y = uv[1] * h as f32 - 0.5;
+        if !(x.is_finite() && y.is_finite()) {
+            return [1.0; 3];
+        }
+        let (fx, fy) = (x.floor(), y.floor());
+        let (ax, ay) = (x - fx, y - fy);
+        let index = |i: i64, n: usize, mode: TextureWrap| -> usize {
+            let n = n as i64;
+            let i = match mode {
+                TextureWrap::Repeat => i.rem_euclid(n),
+                TextureWrap::Clamp => i.clamp(0, n - 1),
+                TextureWrap::Mirror => {
+                    let m = i.rem_euclid(2 * n);
+                    if m < n {
+                        m
+                    } else {
+                        2 * n - 1 - m
+                    }
+                }
+            };
+            i as usize
+        };
+        let (x0, y0) = (fx as i64, fy as i64);
+        let (i0, i1) = (index(x0, w, self.wrap[0]), index(x0 + 1, w, self.wrap[0]));
+        let (j0, j1) = (index(y0, h, self.wrap[1]), index(y0 + 1, h, self.wrap[1]));
+        let texel = |i: usize, j: usize| px[j * w + i].map(srgb8_to_linear);
+        let (c00, c10, c01, c11) = (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1));
+        [0, 1, 2].map(|k| {
+            let top = c00[k] + (c10[k] - c00[k]) * ax;
+            let bottom = c01[k] + (c11[k] - c01[k]) * ax;
+            top + (bottom - top) * ay
+        })
+    }
+}
+
+/// Per-triangle texture lookups of a scene (empty vectors when nothing is textured).
+#[derive(Default)]
+struct SceneTextures {
+    /// Per triangle: index into `maps`, or `u32::MAX`.
+    id: Vec<u32>,
+    /// Per triangle: the corners' texture coordinates.
+    uv: Vec<[[f32; 2]; 3]>,
+    /// Per triangle: texels (of level 0) per metre on the surface, √(texel area / world area).
+    density: Vec<f32>,
+    maps: Vec<MipTexture>,
+}
+
 /// The instances merged into one mesh, with per-triangle shading data.
 struct Scene {
     positions: Vec<[f64; 3]>,
@@ -139,6 +273,7 @@ struct Scene {
     normals: Vec<[[f32; 3]; 3]>,
     /// Per triangle: the three vertex albedos.
     albedo: Vec<[[f32; 3]; 3]>,
+    tex: SceneTextures,
     lo: [f64; 3],
     hi: [f64; 3],
 }
@@ -151,12 +286,26 @@ fn merge(instances: &[MeshInstance]) -> Scene {
         triangles: Vec::with_capacity(nt),
         normals: Vec::with_capacity(nt),
         albedo: Vec::with_capacity(nt),
+        tex: SceneTextures::default(),
         lo: [f64::INFINITY; 3],
         hi: [f64::NEG_INFINITY; 3],
     };
     for inst in instances {
         let base = s.positions.len() as u32;
         let n = inst.positions.len();
+        // This instance's textures, if its materials have any it can look up.
+        let tex_base = s.tex.maps.len() as u32;
+        let textured = match inst.colors {
+            MeshColors::Materials(m)
+                if m.has_textures() && m.uvs.as_ref().is_some_and(|u| u.len() == n) =>
+            {
+                s.tex
+                    .maps
+                    .extend(m.textures.iter().map(|t| MipTexture::new(t)));
+                Some(m)
+            }
+            _ => None,
+        };
         for p in inst.positions {
             let p = p.map(f64::from);
             if p.iter().all(|v| v.is_finite()) {
@@ -204,13 +353,81 @@ fn merge(instances: &[MeshInstance]) -> Scene {
                     });
                     [c; 3]
                 }
+                MeshColors::Materials(m) => {
+                    let inside = |p: &MeshPart| {
+                        (p.first_triangle..p.first_triangle + p.triangle_count).contains(&ti)
+                    };
+                    if !m.parts.get(part).is_some_and(inside) {
+                        part = m.parts.iter().position(inside).unwrap_or(usize::MAX);
+                    }
+                    let c = m.parts.get(part).map_or([0.5; 3], |p| {
+                        [p.base_color[0], p.base_color[1], p.base_color[2]]
+                    });
+                    match m.colors.as_ref().filter(|cs| cs.len() == n) {
+                        Some(cs) => t.map(|i| {
+                            let v = cs[i as usize];
+                            [c[0] * v[0], c[1] * v[1], c[2] * v[2]]
+                        }),
+                        None => [c; 3],
+                    }
+                }
             };
+            if let Some(m) = textured {
+                let id = m
+                    .parts
+                    .get(part)
+                    .and_then(|p| p.texture)
+                    .filter(|&k| k < m.textures.len());
+                if s.tex.id.len() < s.triangles.len() {
+                    // First textured triangle: the ones before it have none.
+                    s.tex.id.resize(s.triangles.len(), u32::MAX);
+                    s.tex.uv.resize(s.triangles.len(), [[0.0; 2]; 3]);
+                    s.tex.density.resize(s.triangles.len(), 0.0);
+                }
+                let uvs = m.uvs.as_deref().unwrap_or(&[]);
+                let uv = t.map(|i| uvs.get(i as usize).copied().unwrap_or([0.0; 2]));
+                let density = id.map_or(0.0, |k| {
+                    let tx = &m.textures[k];
+                    let (w, h) = (tx.width as f32, tx.height as f32);
+                    let (du, dv) = (
+                        [(uv[1][0] - uv[0][0]) * w, (uv[1][1] - uv[0][1]) * h],
+                        [(uv[2][0] - uv[0][0]) * w, (uv[2][1] - uv[0][1]) * h],
+                    );
+                    let texel_area = 0.5 * (du[0] * dv[1] - du[1] * dv[0]).abs();
+                    let [p0, p1, p2] = t.map(|i| inst.positions[i as usize]);
+                    let world = triangle_area(p0, p1, p2);
+                    if world > 0.0 && texel_area.is_finite() {
+                        (texel_area / world).sqrt()
+                    } else {
+                        0.0
+                    }
+                });
+                s.tex.id.push(id.map_or(u32::MAX, |k| tex_base + k as u32));
+                s.tex.uv.push(uv);
+                s.tex.density.push(density);
+            } else if !s.tex.id.is_empty() {
+                s.tex.id.push(u32::MAX);
+                s.tex.uv.push([[0.0; 2]; 3]);
+                s.tex.density.push(0.0);
+            }
             s.triangles.push(t.map(|i| base + i));
             s.normals.push(normals);
             s.albedo.push(albedo);
         }
     }
     s
+}
+
+/// Area of triangle (a, b, c).
+fn triangle_area(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> f32 {
+    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    let n = [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ];
+    0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
 }
 
 /// An orthographic depth map along the sun: texel (i, j) holds the largest `dot(p, sun)` of the
@@ -436,6 +653,8 @@ pub struct MeshRenderer<'a> {
     sun: [f32; 3],
     sun_ok: bool,
     eye: [f64; 3],
+    /// World size of a pixel at unit view depth.
+    pixel: f64,
     raster: Rasterizer,
 }
 
@@ -482,6 +701,8 @@ impl<'a> MeshRenderer<'a> {
             sun: sun.map(|v| v as f32),
             sun_ok,
             eye: camera.eye,
+            pixel: 2.0 * (camera.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan()
+                / f64::from(height.max(1)),
             raster,
         })
     }
@@ -604,7 +825,22 @@ impl<'a> MeshRenderer<'a> {
                 f.bary[0] * corners[0][k] + f.bary[1] * corners[1][k] + f.bary[2] * corners[2][k]
             });
             let n = unit(f.interpolate(scene.normals[t]));
-            let albedo = f.interpolate(scene.albedo[t]);
+            let mut albedo = f.interpolate(scene.albedo[t]);
+            if let Some(map) = scene
+                .tex
+                .id
+                .get(t)
+                .and_then(|&k| scene.tex.maps.get(k as usize))
+            {
+                // Mip level from the sample's footprint (module doc, *Materials*).
+                let to_eye = sub(self.eye, p);
+                let dist = dot(to_eye, to_eye).sqrt().max(1e-12);
+                let cos = (dot(n.map(f64::from), to_eye) / dist).abs().max(0.05);
+                let rho = f.z * self.pixel * f64::from(scene.tex.density[t]) / cos.sqrt();
+                let level = if rho > 1.0 { rho.log2() as f32 } else { 0.0 };
+                let c = map.sample(f.interpolate(scene.tex.uv[t]), level);
+                albedo = [0, 1, 2].map(|k| albedo[k] * c[k]);
+            }
             Sample {
                 c: self.shade_point(p, n, albedo),
                 a: 1.0,

@@ -74,7 +74,7 @@ fn render_scene(
         positions: &mesh.positions,
         normals: mesh.normals.as_deref(),
         triangles: &mesh.triangles,
-        colors: MeshColors::PerPart(&mesh.parts),
+        colors: MeshColors::Materials(mesh),
     }];
     instances.extend(snow.iter().map(|s| MeshInstance {
         positions: &s.positions,

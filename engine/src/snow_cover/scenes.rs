@@ -131,6 +131,7 @@ impl SceneBuilder {
             first_triangle: 0,
             triangle_count: self.mesh.triangles.len(),
             base_color: [0.8, 0.8, 0.8, 1.0],
+            texture: None,
         }];
         self.mesh
     }

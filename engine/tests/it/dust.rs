@@ -827,12 +827,14 @@ fn refining_splits_long_edges_and_lets_d_vary_under_an_overhang() {
             first_triangle: 0,
             triangle_count: 2,
             base_color: [0.5, 0.5, 0.5, 1.0],
+            texture: None,
         },
         phenomena_engine::geom::mesh::MeshPart {
             name: "roof".into(),
             first_triangle: 2,
             triangle_count: 2,
             base_color: [0.5, 0.5, 0.5, 1.0],
+            texture: None,
         },
     ];
     let (mut r, mut n) = crease_split(&m, [0.0, 1.0, 0.0]);

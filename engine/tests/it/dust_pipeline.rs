@@ -93,13 +93,13 @@ fn outputs_are_complete_and_the_glb_is_valid() {
     assert_eq!((render.width, render.height), (160, 120));
     let amount = decode_png(output(&outs, "dust_amount.png"));
     assert_eq!((amount.width, amount.height), (160, 120));
-    // 8 textures of 128² in a 3 × 3 grid.
+    // The preview of 8 textures of 128² in a 3 × 3 grid of 128² cells, 4-pixel gaps, opaque.
     let atlas = output(&outs, "fibers.png");
     let dec = png::Decoder::new(std::io::Cursor::new(atlas));
     let reader = dec.read_info().unwrap();
     let info = reader.info();
-    assert_eq!((info.width, info.height), (384, 384));
-    assert_eq!(info.color_type, png::ColorType::GrayscaleAlpha);
+    assert_eq!((info.width, info.height), (3 * 132 - 4, 3 * 132 - 4));
+    assert_eq!(info.color_type, png::ColorType::Rgba);
 
     let glb = output(&outs, "dusty.glb");
     assert_valid("dusty.glb", glb);
@@ -301,6 +301,7 @@ pub(crate) fn armadillo_grid(min_triangles: usize) -> phenomena_engine::geom::Me
         first_triangle: 0,
         triangle_count: m.triangles.len(),
         base_color: [0.5, 0.5, 0.5, 1.0],
+        texture: None,
     }];
     m
 }

@@ -654,7 +654,7 @@ fn absurd_counts_are_too_large_quickly() {
     let small = MeshOptions {
         max_triangles: 500,
         max_vertices: 500,
-        up_axis: None,
+        ..MeshOptions::default()
     };
     for path in REAL {
         let bytes = std::fs::read(path).unwrap();

@@ -138,6 +138,7 @@ fn glb_mesh_parts_become_coloured_nodes() {
         first_triangle: first,
         triangle_count: count,
         base_color: c,
+        texture: None,
     };
     let mesh = Mesh {
         positions,
@@ -149,6 +150,7 @@ fn glb_mesh_parts_become_coloured_nodes() {
             part("nothing", 2, 0, [1.0, 0.0, 0.0, 1.0]),
             part("wall", 2, 2, [0.8, 0.2, 0.1, 1.0]),
         ],
+        ..Mesh::default()
     };
     let parts = scene_nodes(&mesh);
     assert_eq!(parts.len(), 3);

@@ -1,5 +1,6 @@
 //! glTF 2.0 (`.gltf` with `data:` buffers) and GLB (with its BIN chunk) through the `gltf` crate
-//! (1.4, without its `import` feature: we resolve buffers ourselves and never decode images).
+//! (1.4, without its `import` feature: we resolve buffers and images ourselves, so the limits
+//! hold before anything is decoded).
 //!
 //! - **Scene.** The default scene (else the first; else every root node) is walked from its
 //!   roots, composing node transforms parent → child (matrix or TRS, in f64). Every node that
@@ -14,24 +15,35 @@
 //! - **Attributes.** Positions by the world matrix, normals by its inverse transpose (then
 //!   normalised in [`super::finish`]); UVs (`TEXCOORD_0`, any component type, as f32) and
 //!   normals are kept only when every primitive has them. Base colour: the material's
-//!   `baseColorFactor` (linear RGBA; the default material is white); textures are ignored.
-//! - **Files.** Only self-contained files are read: buffers in the GLB BIN chunk or in base64
-//!   `data:` URIs. A buffer with an external URI is [`InputError::Unusable`] (only one file is
-//!   uploaded). Images are never decoded.
+//!   `baseColorFactor` (linear RGBA; the default material is white) times `COLOR_0` (kept as
+//!   [`crate::geom::Mesh::colors`]) times its `baseColorTexture` (PNG or JPEG, through the
+//!   texture's `texCoord` set and sampler wrap modes; [`super::texture`]). Each texture is decoded
+//!   once however many parts use it. Not applied: `KHR_texture_transform` and other texture
+//!   extensions (noted in [`crate::geom::Mesh::notes`]); an image that is not PNG/JPEG or does not
+//!   decode leaves the base colour, with a note; an image over the pixel limit is `TooLarge`.
+//! - **Files.** Buffers and images in the GLB BIN chunk, in base64 `data:` URIs, or in the
+//!   [`super::Sidecars`] by URI (the CLI reads them from beside a `.gltf`). A buffer found nowhere
+//!   is [`InputError::Unusable`] (an HTTP upload is one file: send a GLB); a missing image is a
+//!   note.
 //! - **Limits.** Vertex and triangle counts are summed from the accessor counts in the JSON
 //!   (once per instancing node) and checked before any buffer is decoded or any vertex read; a
 //!   buffer shorter than its declared `byteLength` and an accessor outside its buffer are
 //!   `Corrupt`.
 //! - The frame is glTF's: Y up, metres. [`super::MeshOptions::up_axis`] does not apply.
 
+use std::collections::HashMap;
+use std::sync::Arc;
+
 use ::gltf::buffer::Source;
 use ::gltf::mesh::Mode;
+use ::gltf::texture::WrappingMode;
 use ::gltf::{Document, Node, Primitive, Semantic};
 use base64::Engine as _;
 
-use super::{check_counts, Builder, MeshFormat, MeshOptions, PartData};
+use super::texture::{decode_image, store_side, ImageError};
+use super::{check_counts, Builder, MeshFormat, MeshOptions, PartData, Sidecars};
 use crate::error::InputError;
-use crate::geom::mesh::Mesh;
+use crate::geom::mesh::{Mesh, Texture, TextureWrap};
 
 /// Column-major 4 × 4 matrix (`m[col][row]`), as glTF stores them.
 type M4 = [[f64; 4]; 4];
@@ -95,10 +107,124 @@ fn transform_normal(n3: &[[f64; 3]; 3], v: [f32; 3]) -> [f32; 3] {
     r.map(|v| v as f32)
 }
 
+/// The non-`data:` buffer and image URIs of a `.gltf` (for [`super::gather_sidecars`]).
+pub(super) fn external_uris(bytes: &[u8]) -> Vec<String> {
+    let Ok(v) = serde_json::from_slice::<serde_json::Value>(bytes) else {
+        return Vec::new();
+    };
+    ["buffers", "images"]
+        .iter()
+        .filter_map(|k| v.get(*k)?.as_array())
+        .flatten()
+        .filter_map(|b| b.get("uri")?.as_str())
+        .filter(|u| !u.starts_with("data:"))
+        .map(str::to_string)
+        .collect()
+}
+
+/// The bytes of a `data:` URI (base64 only).
+fn data_uri(uri: &str) -> Option<Result<Vec<u8>, String>> {
+    let rest = uri.strip_prefix("data:")?;
+    let Some((_, payload)) = rest.split_once(";base64,") else {
+        return Some(Err("only base64 data: URIs are supported".to_string()));
+    };
+    // Decoded size ≤ 3/4 of the text, which the upload limit already bounds.
+    Some(
+        base64::engine::general_purpose::STANDARD
+            .decode(payload.trim_end())
+            .map_err(|e| format!("bad base64: {e}")),
+    )
+}
+
+fn wrap(mode: WrappingMode) -> TextureWrap {
+    match mode {
+        WrappingMode::Repeat => TextureWrap::Repeat,
+        WrappingMode::ClampToEdge => TextureWrap::Clamp,
+        WrappingMode::MirroredRepeat => TextureWrap::Mirror,
+    }
+}
+
+/// Decodes the base-colour textures the instanced primitives use; returns our textures and the
+/// map from glTF texture index to ours. Missing or undecodable images become notes.
+fn base_color_textures(
+    doc: &Document,
+    instances: &[(Node<'_>, M4)],
+    buffers: &[std::borrow::Cow<'_, [u8]>],
+    sidecars: Sidecars<'_>,
+    opts: &MeshOptions,
+    builder: &mut Builder,
+) -> Result<(Vec<Arc<Texture>>, HashMap<usize, usize>), InputError> {
+    let mut used: Vec<usize> = Vec::new();
+    for (node, _) in instances {
+        for prim in node.mesh().into_iter().flat_map(|m| m.primitives()) {
+            let pbr = prim.material().pbr_metallic_roughness();
+            if let Some(info) = pbr.base_color_texture() {
+                let t = info.texture().index();
+                if !used.contains(&t) {
+                    used.push(t);
+                }
+            }
+        }
+    }
+    let side = store_side(used.len());
+    let mut textures = Vec::new();
+    let mut map = HashMap::new();
+    for t in used {
+        let Some(tex) = doc.textures().nth(t) else {
+            continue;
+        };
+        let image = tex.source();
+        let name = image
+            .name()
+            .map(str::to_string)
+            .unwrap_or_else(|| format!("image {}", image.index()));
+        let bytes: Result<Vec<u8>, String> = match image.source() {
+            ::gltf::image::Source::View { view, .. } => {
+                let (o, l) = (view.offset(), view.length());
+                buffers
+                    .get(view.buffer().index())
+                    .and_then(|b| b.get(o..o.checked_add(l)?))
+                    .map(<[u8]>::to_vec)
+                    .ok_or_else(|| format!("the bufferView of {name} lies outside its buffer"))
+            }
+            ::gltf::image::Source::Uri { uri, .. } => match data_uri(uri) {
+                Some(r) => r.map_err(|e| format!("{name}: {e}")),
+                None => sidecars.get(uri).map(<[u8]>::to_vec).ok_or_else(|| {
+                    format!(
+                        "image '{}' is an external file that was not given (an upload is one \
+                         file: send a GLB)",
+                        uri.chars().take(200).collect::<String>()
+                    )
+                }),
+            },
+        };
+        let sampler = tex.sampler();
+        let decoded = bytes.map_err(ImageError::Unsupported).and_then(|b| {
+            decode_image(
+                Arc::from(b),
+                &name,
+                [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())],
+                opts.max_texture_pixels,
+                side,
+            )
+        });
+        match decoded {
+            Ok(texture) => {
+                map.insert(t, textures.len());
+                textures.push(Arc::new(texture));
+            }
+            Err(ImageError::TooLarge(e)) => return Err(e),
+            Err(e) => builder.note(format!("{e}; its parts keep their base colour")),
+        }
+    }
+    Ok((textures, map))
+}
+
 pub(super) fn decode(
     bytes: &[u8],
     format: MeshFormat,
     opts: &MeshOptions,
+    sidecars: Sidecars<'_>,
 ) -> Result<Mesh, InputError> {
     let name = format.name();
     let corrupt = |detail: String| InputError::Corrupt {
@@ -113,6 +239,12 @@ pub(super) fn decode(
     };
     let root = ::gltf::json::Root::from_slice(&json).map_err(|e| corrupt(e.to_string()))?;
     drop(json);
+    let texture_extensions: Vec<String> = root
+        .extensions_used
+        .iter()
+        .filter(|e| e.starts_with("KHR_texture") || e.starts_with("EXT_texture"))
+        .cloned()
+        .collect();
     precheck(&root).map_err(corrupt)?;
     let document = ::gltf::Document::from_json(root).map_err(|e| corrupt(e.to_string()))?;
     let doc = &document;
@@ -131,8 +263,15 @@ pub(super) fn decode(
     }
     check_counts(vertices, triangles, opts)?;
 
-    let buffers = resolve_buffers(doc, blob.as_deref(), name)?;
+    let buffers = resolve_buffers(doc, blob.as_deref(), name, sidecars)?;
     let mut builder = Builder::new();
+    let (textures, texture_map) =
+        base_color_textures(doc, &instances, &buffers, sidecars, opts, &mut builder)?;
+    if !texture_extensions.is_empty() && !textures.is_empty() {
+        builder.note(format!(
+            "texture extensions {texture_extensions:?} are not applied"
+        ));
+    }
     let mut part_index = 0usize;
     for (node, world) in &instances {
         let Some(mesh) = node.mesh() else { continue };
@@ -147,11 +286,12 @@ pub(super) fn decode(
                 .map_or_else(|| format!("part{part_index}"), str::to_string);
             let part_name = if several { format!("{base}/{p}") } else { base };
             part_index += 1;
-            let part = read_primitive(&prim, world, &buffers, part_name).map_err(corrupt)?;
+            let part =
+                read_primitive(&prim, world, &buffers, part_name, &texture_map).map_err(corrupt)?;
             builder.push_part(part, name)?;
         }
     }
-    Ok(builder.build())
+    Ok(builder.build_with(textures))
 }
 
 /// What `gltf-json` 1.4's validator indexes without checking: a primitive's `POSITION`
@@ -222,6 +362,7 @@ fn resolve_buffers<'a>(
     doc: &Document,
     blob: Option<&'a [u8]>,
     format: &'static str,
+    sidecars: Sidecars<'a>,
 ) -> Result<Vec<std::borrow::Cow<'a, [u8]>>, InputError> {
     let corrupt = |detail: String| InputError::Corrupt { format, detail };
     let mut out = Vec::with_capacity(doc.buffers().len());
@@ -233,27 +374,20 @@ fn resolve_buffers<'a>(
                     b.index()
                 ))
             })?),
-            Source::Uri(uri) => {
-                let Some(rest) = uri.strip_prefix("data:") else {
-                    return Err(InputError::Unusable(format!(
-                        "buffer {} refers to the external file '{}'; only self-contained files \
-                         can be uploaded (a GLB, or a .gltf with embedded data: URIs)",
+            Source::Uri(uri) => match data_uri(uri) {
+                Some(r) => std::borrow::Cow::Owned(
+                    r.map_err(|e| corrupt(format!("buffer {}: {e}", b.index())))?,
+                ),
+                None => std::borrow::Cow::Borrowed(sidecars.get(uri).ok_or_else(|| {
+                    InputError::Unusable(format!(
+                        "buffer {} refers to the external file '{}', which was not given; an \
+                         upload is one file (a GLB, or a .gltf with embedded data: URIs); the \
+                         CLI reads such files from beside the .gltf",
                         b.index(),
                         uri.chars().take(200).collect::<String>()
-                    )));
-                };
-                let Some((_, payload)) = rest.split_once(";base64,") else {
-                    return Err(corrupt(format!(
-                        "buffer {}: only base64 data: URIs are supported",
-                        b.index()
-                    )));
-                };
-                // Decoded size ≤ 3/4 of the text, which the upload limit already bounds.
-                let bytes = base64::engine::general_purpose::STANDARD
-                    .decode(payload.trim_end())
-                    .map_err(|e| corrupt(format!("buffer {}: bad base64: {e}", b.index())))?;
-                std::borrow::Cow::Owned(bytes)
-            }
+                    ))
+                })?),
+            },
         };
         if data.len() < b.length() {
             return Err(corrupt(format!(
@@ -274,6 +408,7 @@ fn read_primitive(
     world: &M4,
     buffers: &[std::borrow::Cow<'_, [u8]>],
     name: String,
+    texture_map: &HashMap<usize, usize>,
 ) -> Result<PartData, String> {
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
     let positions: Vec<[f32; 3]> = reader
@@ -287,9 +422,24 @@ fn read_primitive(
         .read_normals()
         .map(|it| it.map(|v| transform_normal(&nm, v)).collect::<Vec<_>>())
         .filter(|v| v.len() == n);
+    let material = prim.material();
+    let pbr = material.pbr_metallic_roughness();
+    let info = pbr.base_color_texture();
+    let texture = info
+        .as_ref()
+        .and_then(|i| texture_map.get(&i.texture().index()).copied());
+    // The UV set the texture names (set 0 without a texture: the dust's fibre mapping uses it).
+    let set = match (&info, texture) {
+        (Some(i), Some(_)) => i.tex_coord(),
+        _ => 0,
+    };
     let uvs = reader
-        .read_tex_coords(0)
+        .read_tex_coords(set)
         .map(|t| t.into_f32().collect::<Vec<_>>())
+        .filter(|v| v.len() == n);
+    let colors = reader
+        .read_colors(0)
+        .map(|c| c.into_rgba_f32().collect::<Vec<_>>())
         .filter(|v| v.len() == n);
     let corners: Vec<u32> = match prim.indices() {
         Some(_) => reader
@@ -326,13 +476,14 @@ fn read_primitive(
             t.swap(1, 2);
         }
     }
-    let material = prim.material();
     Ok(PartData {
         name,
-        base_color: material.pbr_metallic_roughness().base_color_factor(),
+        base_color: pbr.base_color_factor(),
+        texture,
         positions,
         normals,
         uvs,
+        colors,
         triangles,
     })
 }

@@ -24,17 +24,29 @@
 //! Cost: one pass over the file (two for OBJ), plus the mesh itself; glTF additionally holds the
 //! decoded `data:` buffers while reading.
 //!
-//! Rejected designs: resolving external glTF/OBJ-MTL files (only one file is uploaded; a missing
-//! sidecar is reported, or, for MTL, replaced by grey), decoding glTF images (not needed for the
-//! base colour, and an easy way to blow the memory budget), welding vertices across parts.
+//! - **Materials** (`crate::geom::mesh`, *Materials*): glTF base colour factors, `COLOR_0` and
+//!   base-colour textures; OBJ `Kd`/`d`/`map_Kd` from its MTL; PLY vertex colours. Textures are
+//!   PNG or JPEG ([`texture`]), refused over [`MeshOptions::max_texture_pixels`] from their header
+//!   and stored within a shared budget. **Sidecar files** (an OBJ's MTL and textures, a `.gltf`'s
+//!   external buffers and images) come as [`Sidecars`], by the relative path the file names:
+//!   the CLI reads them from beside the input ([`gather_sidecars`]); the HTTP API takes one file,
+//!   so an upload that needs them keeps its defaults — a GLB embeds everything and is the way to
+//!   send a textured model. A missing or undecodable MTL or texture is never an error: the part
+//!   keeps grey (OBJ without MTL) or its base colour, and [`Mesh::notes`] says what was missing
+//!   (the pipelines put the notes in `report.json`). A `.gltf` buffer that is missing is still
+//!   [`InputError::Unusable`]: without it there is no geometry.
+//!
+//! Rejected designs: a zip upload for OBJ + MTL + textures (one more container to bound and
+//! fuzz, while GLB already carries everything), welding vertices across parts.
 
 mod gltf;
 mod obj;
 mod ply;
 mod stl;
+pub mod texture;
 
 use crate::error::InputError;
-use crate::geom::mesh::{Mesh, MeshPart};
+use crate::geom::mesh::{Mesh, MeshPart, Texture};
 
 /// Which file axis points up, for formats without a fixed convention (OBJ, STL, PLY).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,6 +70,9 @@ pub struct MeshOptions {
     /// Up axis for OBJ/STL/PLY (glTF is always Y-up by its spec). `None` = the format's
     /// default: Z for STL and PLY, Y for OBJ. Default: `None`.
     pub up_axis: Option<UpAxis>,
+    /// Refuse base-colour textures with more pixels than this, from the image header before
+    /// decoding ([`InputError::TooLarge`]). Default: 8192² (≈ 67 M pixels).
+    pub max_texture_pixels: u64,
 }
 
 impl Default for MeshOptions {
@@ -66,8 +81,81 @@ impl Default for MeshOptions {
             max_triangles: 4_000_000,
             max_vertices: 4_000_000,
             up_axis: None,
+            max_texture_pixels: 8192 * 8192,
         }
     }
+}
+
+/// The files a mesh refers to by relative path (OBJ `mtllib` and `map_Kd`, glTF buffer and image
+/// URIs), as (path as written in the referring file, bytes). The CLI reads them from beside the
+/// input ([`gather_sidecars`]); the HTTP API uploads one file, so there they are empty and the
+/// readers fall back to defaults with a note (see the module doc, *Materials*).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Sidecars<'a>(pub &'a [(String, Vec<u8>)]);
+
+impl<'a> Sidecars<'a> {
+    /// The bytes of the file `name` refers to (compared after [`normalize_ref`]).
+    pub fn get(&self, name: &str) -> Option<&'a [u8]> {
+        let want = normalize_ref(name);
+        self.0
+            .iter()
+            .find(|(k, _)| normalize_ref(k) == want)
+            .map(|(_, v)| &v[..])
+    }
+}
+
+/// A relative reference as the readers compare them: `%XX` escapes decoded (glTF URIs),
+/// backslashes as slashes (Windows exporters), a leading `./` dropped.
+pub fn normalize_ref(name: &str) -> String {
+    let mut out = Vec::with_capacity(name.len());
+    let b = name.trim().as_bytes();
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            let hex = std::str::from_utf8(&b[i + 1..i + 3]).unwrap_or("");
+            if let Ok(v) = u8::from_str_radix(hex, 16) {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(if b[i] == b'\\' { b'/' } else { b[i] });
+        i += 1;
+    }
+    let s = String::from_utf8_lossy(&out).into_owned();
+    s.strip_prefix("./").map(str::to_string).unwrap_or(s)
+}
+
+/// The relative files `bytes` (a mesh named `filename`) refers to, read with `read` (given the
+/// normalised reference; `None` = not there): for OBJ its `mtllib` files and the `map_Kd`
+/// textures those name, for a `.gltf` its non-`data:` buffer and image URIs. At most 64 files;
+/// others formats have none. For the CLI, which reads them from beside the input file.
+pub fn gather_sidecars(
+    bytes: &[u8],
+    filename: Option<&str>,
+    read: &mut dyn FnMut(&str) -> Option<Vec<u8>>,
+) -> Vec<(String, Vec<u8>)> {
+    let mut names: Vec<String> = Vec::new();
+    match sniff_mesh(bytes, filename) {
+        Some(MeshFormat::Obj) => names.extend(obj::material_libraries(bytes)),
+        Some(MeshFormat::Gltf) => names.extend(gltf::external_uris(bytes)),
+        _ => return Vec::new(),
+    }
+    let mut out: Vec<(String, Vec<u8>)> = Vec::new();
+    let mut i = 0;
+    while i < names.len() && out.len() < 64 {
+        let name = normalize_ref(&names[i]);
+        i += 1;
+        if out.iter().any(|(k, _)| *k == name) {
+            continue;
+        }
+        let Some(data) = read(&name) else { continue };
+        if name.to_ascii_lowercase().ends_with(".mtl") {
+            names.extend(obj::mtl_textures(&data));
+        }
+        out.push((name, data));
+    }
+    out
 }
 
 /// The mesh formats we read.
@@ -155,14 +243,25 @@ pub fn decode_mesh(
     filename: Option<&str>,
     opts: &MeshOptions,
 ) -> Result<Mesh, InputError> {
+    decode_mesh_with(bytes, filename, opts, Sidecars::default())
+}
+
+/// [`decode_mesh`] with the files the mesh refers to ([`Sidecars`]): OBJ material libraries and
+/// their textures, external glTF buffers and images.
+pub fn decode_mesh_with(
+    bytes: &[u8],
+    filename: Option<&str>,
+    opts: &MeshOptions,
+    sidecars: Sidecars<'_>,
+) -> Result<Mesh, InputError> {
     let format = sniff_mesh(bytes, filename).ok_or_else(|| {
         InputError::UnsupportedFormat(
             "not a mesh format we read (glTF/GLB, OBJ, STL, PLY)".to_string(),
         )
     })?;
     let decoded = std::panic::catch_unwind(|| match format {
-        MeshFormat::Gltf | MeshFormat::Glb => gltf::decode(bytes, format, opts),
-        MeshFormat::Obj => obj::decode(bytes, opts),
+        MeshFormat::Gltf | MeshFormat::Glb => gltf::decode(bytes, format, opts, sidecars),
+        MeshFormat::Obj => obj::decode(bytes, opts, sidecars),
         MeshFormat::Stl => stl::decode(bytes, opts),
         MeshFormat::Ply => ply::decode(bytes, opts),
     })
@@ -217,22 +316,44 @@ pub(crate) fn check_counts(
 }
 
 /// Collects parts of a mesh; indices passed to [`Builder::push_part`] are local to the part.
+///
+/// Attribute sets across parts: normals are kept only when every part has them (consumers
+/// compute their own otherwise). UVs are kept when every part has them, or when a part with a
+/// texture has them (the others get (0, 0): they have no texture to look up). Vertex colours are
+/// kept when any part has them (the others get white, which leaves their base colour as it is).
 pub(crate) struct Builder {
     mesh: Mesh,
     normals: Vec<[f32; 3]>,
     uvs: Vec<[f32; 2]>,
+    colors: Vec<[f32; 4]>,
     all_normals: bool,
     all_uvs: bool,
+    textured_uvs: bool,
+    any_colors: bool,
 }
 
 /// One part's data, indices local to `positions`.
 pub(crate) struct PartData {
     pub name: String,
     pub base_color: [f32; 4],
+    /// Index into the textures given to [`Builder::build`].
+    pub texture: Option<usize>,
     pub positions: Vec<[f32; 3]>,
     pub normals: Option<Vec<[f32; 3]>>,
     pub uvs: Option<Vec<[f32; 2]>>,
+    /// Linear RGBA per vertex.
+    pub colors: Option<Vec<[f32; 4]>>,
     pub triangles: Vec<[u32; 3]>,
+}
+
+/// Linear from an sRGB value 0..1 (clamped).
+pub(crate) fn srgb_to_linear(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 /// Neutral grey (linear) for formats without material colours.
@@ -244,13 +365,23 @@ impl Builder {
             mesh: Mesh::default(),
             normals: Vec::new(),
             uvs: Vec::new(),
+            colors: Vec::new(),
             all_normals: true,
             all_uvs: true,
+            textured_uvs: false,
+            any_colors: false,
         }
     }
 
     pub fn vertex_count(&self) -> usize {
         self.mesh.positions.len()
+    }
+
+    /// Adds a note for the report (see [`Mesh::notes`]).
+    pub fn note(&mut self, note: String) {
+        if !self.mesh.notes.contains(&note) {
+            self.mesh.notes.push(note);
+        }
     }
 
     /// Append a part; its indices are checked against its own vertex count. A part without
@@ -295,12 +426,25 @@ impl Builder {
                 self.normals = Vec::new();
             }
         }
-        match part.uvs {
-            Some(v) if v.len() == n && self.all_uvs => self.uvs.extend(v),
-            _ => {
-                self.all_uvs = false;
-                self.uvs = Vec::new();
+        let before = base as usize;
+        match part.uvs.filter(|v| v.len() == n) {
+            Some(v) => {
+                self.textured_uvs |= part.texture.is_some();
+                self.uvs.resize(before, [0.0; 2]);
+                self.uvs.extend(v);
             }
+            None => {
+                self.all_uvs = false;
+                self.uvs.resize(before + n, [0.0; 2]);
+            }
+        }
+        match part.colors.filter(|v| v.len() == n) {
+            Some(v) => {
+                self.any_colors = true;
+                self.colors.resize(before, [1.0; 4]);
+                self.colors.extend(v);
+            }
+            None => self.colors.resize(before + n, [1.0; 4]),
         }
         self.mesh.positions.extend(part.positions);
         self.mesh.parts.push(MeshPart {
@@ -308,18 +452,35 @@ impl Builder {
             first_triangle,
             triangle_count: part.triangles.len(),
             base_color: part.base_color,
+            texture: part.texture,
         });
         Ok(())
     }
 
-    pub fn build(mut self) -> Mesh {
-        if self.all_normals && !self.mesh.positions.is_empty() {
+    /// The mesh, with `textures` (the parts' texture indices refer to them).
+    pub fn build_with(mut self, textures: Vec<std::sync::Arc<Texture>>) -> Mesh {
+        let has_vertices = !self.mesh.positions.is_empty();
+        if self.all_normals && has_vertices {
             self.mesh.normals = Some(self.normals);
         }
-        if self.all_uvs && !self.mesh.positions.is_empty() {
+        if (self.all_uvs || self.textured_uvs) && has_vertices {
             self.mesh.uvs = Some(self.uvs);
         }
+        if self.any_colors && has_vertices {
+            self.mesh.colors = Some(self.colors);
+        }
+        // A part whose texture is missing keeps its base colour.
+        for p in &mut self.mesh.parts {
+            if p.texture.is_some_and(|t| t >= textures.len()) {
+                p.texture = None;
+            }
+        }
+        self.mesh.textures = textures;
         self.mesh
+    }
+
+    pub fn build(self) -> Mesh {
+        self.build_with(Vec::new())
     }
 }
 
@@ -385,6 +546,18 @@ fn finish(mut mesh: Mesh, format: &'static str, opts: &MeshOptions) -> Result<Me
         .is_some_and(|v| v.len() != n || v.iter().flatten().any(|c| !c.is_finite()))
     {
         mesh.uvs = None;
+    }
+    if mesh
+        .colors
+        .as_ref()
+        .is_some_and(|v| v.len() != n || v.iter().flatten().any(|c| !c.is_finite()))
+    {
+        mesh.colors = None;
+    }
+    if let Some(colors) = &mut mesh.colors {
+        for c in colors.iter_mut() {
+            *c = c.map(|v| v.clamp(0.0, 1.0));
+        }
     }
     // Parts must tile the triangles; readers build them that way, but keep the promise.
     let mut next = 0;

@@ -1,8 +1,16 @@
 //! Wavefront OBJ through `tobj` 4 (triangulated, single index per (v, vt, vn) corner).
 //!
 //! - Each `o`/`g` object (and each `usemtl` switch inside one, which is how `tobj` splits
-//!   models) becomes a [`crate::geom::mesh::MeshPart`] named after it. The MTL library is a
-//!   second file and only one is uploaded, so `Kd` is never available: every part is grey.
+//!   models) becomes a [`crate::geom::mesh::MeshPart`] named after it.
+//! - **Materials.** The `mtllib` files and the textures they name are *sidecars*
+//!   ([`super::Sidecars`]): the CLI reads them from beside the OBJ; an HTTP upload is one file and
+//!   has none. A part takes its material's `Kd` (read as linear RGB, as exporters write the
+//!   material's colour; `d` is its alpha) or, when it resolves, `map_Kd` instead (with Kd's
+//!   default 0.8 beside a texture, as many exporters write it, multiplying would darken it) (PNG or JPEG; options such as `-s 1 1 1`
+//!   before the file name are skipped, scale/offset not applied). A missing or unreadable library,
+//!   material or texture is never an error: the part keeps grey or its `Kd`, and
+//!   [`crate::geom::Mesh::notes`] says what was missing. Texture coordinates are flipped to glTF's
+//!   convention (v = 1 − v). `v x y z r g b` vertex colours (0–1, sRGB) are kept, as linear.
 //! - `v`, `vt`, `vn`, negative (relative) indices, polygons (fanned by `tobj`). Points and lines
 //!   are dropped. Normals/UVs are kept when every part has them for every corner.
 //! - A counting pass runs before `tobj`: it counts `v` lines and the fanned triangles of the `f`
@@ -13,9 +21,15 @@
 
 use std::io::BufReader;
 
-use super::{check_counts, Builder, MeshOptions, PartData, GREY};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use super::texture::{decode_image, store_side, ImageError};
+use super::{
+    check_counts, normalize_ref, srgb_to_linear, Builder, MeshOptions, PartData, Sidecars, GREY,
+};
 use crate::error::InputError;
-use crate::geom::mesh::Mesh;
+use crate::geom::mesh::{Mesh, Texture, TextureWrap};
 
 const FORMAT: &str = "OBJ";
 
@@ -138,7 +152,43 @@ fn check_pass(bytes: &[u8], opts: &MeshOptions) -> Result<Counts, InputError> {
     })
 }
 
-pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputError> {
+/// The `mtllib` references of an OBJ (the rest of each line, as `tobj` reads it).
+pub(super) fn material_libraries(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8_lossy(bytes);
+    text.lines()
+        .filter_map(|l| l.trim_start().strip_prefix("mtllib"))
+        .filter(|r| r.starts_with([' ', '\t']))
+        .map(|r| r.trim().to_string())
+        .filter(|r| !r.is_empty())
+        .collect()
+}
+
+/// The file name of a `map_Kd` value: options (`-s u v w`, `-o …`, `-bm x`, …) skipped, so the
+/// last word when options are present, else the whole value (names may hold spaces).
+fn map_file(value: &str) -> String {
+    let v = value.trim();
+    if v.starts_with('-') {
+        v.split_whitespace().last().unwrap_or("").to_string()
+    } else {
+        v.to_string()
+    }
+}
+
+/// The `map_Kd` files an MTL names.
+pub(super) fn mtl_textures(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8_lossy(bytes);
+    text.lines()
+        .filter_map(|l| l.trim_start().strip_prefix("map_Kd"))
+        .map(map_file)
+        .filter(|r| !r.is_empty())
+        .collect()
+}
+
+pub(super) fn decode(
+    bytes: &[u8],
+    opts: &MeshOptions,
+    sidecars: Sidecars<'_>,
+) -> Result<Mesh, InputError> {
     let counts = check_pass(bytes, opts)?;
     check_counts(counts.vertices, counts.triangles, opts)?;
     if counts.triangles == 0 {
@@ -153,12 +203,73 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
         ignore_lines: true,
     };
     let mut reader = BufReader::new(bytes);
-    // The MTL library is not uploaded: every `mtllib` fails to load, and we colour parts grey.
-    let (models, _materials) =
-        tobj::load_obj_buf(&mut reader, &load, |_| Err(tobj::LoadError::OpenFileFailed))
-            .map_err(|e| corrupt(e.to_string()))?;
-
     let mut builder = Builder::new();
+    for lib in material_libraries(bytes) {
+        match sidecars.get(&lib) {
+            None => builder.note(format!(
+                "material library '{lib}' was not given (an upload is one file: send a GLB to \
+                 keep materials; the CLI reads it from beside the OBJ); parts are grey"
+            )),
+            Some(b) if tobj::load_mtl_buf(&mut BufReader::new(b)).is_err() => {
+                builder.note(format!(
+                    "material library '{lib}' could not be read; parts are grey"
+                ));
+            }
+            Some(_) => {}
+        }
+    }
+    // Libraries come from the sidecars; a missing one loads nothing (noted above).
+    let (models, materials) = tobj::load_obj_buf(&mut reader, &load, |path| {
+        let name = path.to_string_lossy();
+        match sidecars.get(&name) {
+            Some(b) => tobj::load_mtl_buf(&mut BufReader::new(b)),
+            None => Err(tobj::LoadError::OpenFileFailed),
+        }
+    })
+    .map_err(|e| corrupt(e.to_string()))?;
+    let materials = materials.unwrap_or_default();
+
+    // The textures the used materials name, decoded once each.
+    let mut used: Vec<String> = Vec::new();
+    for model in &models {
+        if let Some(t) = model
+            .mesh
+            .material_id
+            .and_then(|m| materials.get(m))
+            .and_then(|m| m.diffuse_texture.as_deref())
+        {
+            let t = normalize_ref(&map_file(t));
+            if !used.contains(&t) {
+                used.push(t);
+            }
+        }
+    }
+    let side = store_side(used.len());
+    let mut textures: Vec<Arc<Texture>> = Vec::new();
+    let mut texture_of: HashMap<String, usize> = HashMap::new();
+    for name in used {
+        let Some(b) = sidecars.get(&name) else {
+            builder.note(format!(
+                "texture '{name}' was not given; its parts keep their Kd colour"
+            ));
+            continue;
+        };
+        match decode_image(
+            Arc::from(b),
+            &name,
+            [TextureWrap::Repeat; 2],
+            opts.max_texture_pixels,
+            side,
+        ) {
+            Ok(t) => {
+                texture_of.insert(name, textures.len());
+                textures.push(Arc::new(t));
+            }
+            Err(ImageError::TooLarge(e)) => return Err(e),
+            Err(e) => builder.note(format!("{e}; its parts keep their Kd colour")),
+        }
+    }
+
     for (i, model) in models.into_iter().enumerate() {
         let m = model.mesh;
         let n = m.positions.len() / 3;
@@ -173,8 +284,47 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
                 .map(|c| [c[0], c[1], c[2]])
                 .collect()
         });
-        let uvs = (m.texcoords.len() == 2 * n)
-            .then(|| m.texcoords.chunks_exact(2).map(|c| [c[0], c[1]]).collect());
+        let uvs = (m.texcoords.len() == 2 * n).then(|| {
+            m.texcoords
+                .chunks_exact(2)
+                .map(|c| [c[0], 1.0 - c[1]])
+                .collect()
+        });
+        let colors = (m.vertex_color.len() == 3 * n).then(|| {
+            m.vertex_color
+                .chunks_exact(3)
+                .map(|c| {
+                    [
+                        srgb_to_linear(c[0]),
+                        srgb_to_linear(c[1]),
+                        srgb_to_linear(c[2]),
+                        1.0,
+                    ]
+                })
+                .collect()
+        });
+        let material = m.material_id.and_then(|i| materials.get(i));
+        let base_color = material.map_or(GREY, |mat| {
+            let kd = mat.diffuse.unwrap_or([0.8; 3]);
+            let alpha = mat.dissolve.unwrap_or(1.0);
+            [kd[0], kd[1], kd[2], alpha].map(|v| {
+                if v.is_finite() {
+                    v.clamp(0.0, 1.0)
+                } else {
+                    1.0
+                }
+            })
+        });
+        let texture = material
+            .and_then(|mat| mat.diffuse_texture.as_deref())
+            .and_then(|t| texture_of.get(&normalize_ref(&map_file(t))).copied());
+        // A resolved `map_Kd` replaces `Kd` (as Blender's importer reads it; exporters often
+        // write a default Kd of 0.8 beside a texture).
+        let base_color = if texture.is_some() {
+            [1.0, 1.0, 1.0, base_color[3]]
+        } else {
+            base_color
+        };
         let triangles = m
             .indices
             .chunks_exact(3)
@@ -188,10 +338,12 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
         builder.push_part(
             PartData {
                 name,
-                base_color: GREY,
+                base_color,
+                texture,
                 positions,
                 normals,
                 uvs,
+                colors,
                 triangles,
             },
             FORMAT,
@@ -199,5 +351,5 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
         // Corners split by (v, vt, vn) can outnumber the `v` lines; cap as we go.
         check_counts(builder.vertex_count() as u64, 0, opts)?;
     }
-    Ok(builder.build())
+    Ok(builder.build_with(textures))
 }

@@ -3,7 +3,11 @@
 //! little/big endian.
 //!
 //! - Element `vertex`: `x y z` (any scalar type, required), `nx ny nz` (normals), texture
-//!   coordinates as `u v`, `s t` or `texture_u texture_v`. Other properties are ignored.
+//!   coordinates as `u v`, `s t` or `texture_u texture_v` (flipped to glTF's v = 1 − v), colours as `red green blue [alpha]`
+//!   (also `r g b a`, `diffuse_red …`; integers over their type's range — 255 for uchar — floats
+//!   as 0–1; read as sRGB, as scanners and MeshLab write them, and kept linear in
+//!   [`crate::geom::Mesh::colors`], the part's base colour then white). Other properties are
+//!   ignored.
 //! - Element `face`: the list `vertex_indices` (or `vertex_index`); polygons are fanned
 //!   (n − 2 triangles), faces with fewer than 3 corners are skipped, negative indices are
 //!   `Corrupt`. Other elements (`edge`, `material`, …) are read and dropped.
@@ -11,12 +15,12 @@
 //!   limits (a face is at least one triangle), the other elements against their sum, and for
 //!   binary files the smallest possible payload for those counts against the bytes present —
 //!   all before any element is read. The fanned triangle total is checked again before the index
-//!   buffer is allocated. One part, grey; default up axis Z.
+//!   buffer is allocated. One part, grey (white under vertex colours); default up axis Z.
 
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use super::{check_counts, Builder, MeshOptions, PartData, GREY};
+use super::{check_counts, srgb_to_linear, Builder, MeshOptions, PartData, GREY};
 use crate::error::InputError;
 use crate::geom::mesh::Mesh;
 
@@ -48,13 +52,52 @@ struct Vertex {
     p: [f64; 3],
     n: [f32; 3],
     uv: [f32; 2],
+    /// sRGB 0..1 (alpha linear).
+    c: [f32; 4],
 }
+
+/// A colour channel 0..1 from a property of any scalar type.
+fn channel(p: &Property) -> Option<f32> {
+    Some(match *p {
+        Property::UChar(v) => f32::from(v) / 255.0,
+        Property::Char(v) => f32::from(v.max(0)) / 127.0,
+        Property::UShort(v) => f32::from(v) / 65535.0,
+        Property::Short(v) => f32::from(v.max(0)) / 32767.0,
+        Property::UInt(v) => (f64::from(v) / f64::from(u32::MAX)) as f32,
+        Property::Int(v) => (f64::from(v.max(0)) / f64::from(i32::MAX)) as f32,
+        Property::Float(v) => v,
+        Property::Double(v) => v as f32,
+        _ => return None,
+    })
+}
+
+const COLOR_NAMES: [[&str; 3]; 3] = [
+    ["red", "green", "blue"],
+    ["r", "g", "b"],
+    ["diffuse_red", "diffuse_green", "diffuse_blue"],
+];
 
 impl PropertyAccess for Vertex {
     fn new() -> Self {
-        Self::default()
+        Self {
+            c: [1.0; 4],
+            ..Self::default()
+        }
     }
     fn set_property(&mut self, name: &str, property: Property) {
+        let k = match name {
+            "red" | "r" | "diffuse_red" => Some(0),
+            "green" | "g" | "diffuse_green" => Some(1),
+            "blue" | "b" | "diffuse_blue" => Some(2),
+            "alpha" | "a" | "diffuse_alpha" => Some(3),
+            _ => None,
+        };
+        if let Some(k) = k {
+            if let Some(c) = channel(&property).filter(|c| c.is_finite()) {
+                self.c[k] = c.clamp(0.0, 1.0);
+            }
+            return;
+        }
         let Some(v) = scalar(&property) else {
             return;
         };
@@ -178,6 +221,7 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
     let has = |names: &[&str]| names.iter().all(|n| vertex_def.properties.contains_key(*n));
     let has_normals = has(&["nx", "ny", "nz"]);
     let has_uvs = has(&["u", "v"]) || has(&["s", "t"]) || has(&["texture_u", "texture_v"]);
+    let has_colors = COLOR_NAMES.iter().any(|names| has(names));
 
     let mut vertices: Vec<Vertex> = Vec::new();
     let mut faces: Vec<Face> = Vec::new();
@@ -227,16 +271,32 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
         .map(|v| v.p.map(|c| c as f32))
         .collect::<Vec<_>>();
     let normals = has_normals.then(|| vertices.iter().map(|v| v.n).collect());
-    let uvs = has_uvs.then(|| vertices.iter().map(|v| v.uv).collect());
+    // PLY's texture coordinates have v up (MeshLab, VTK); glTF's convention is v down.
+    let uvs = has_uvs.then(|| vertices.iter().map(|v| [v.uv[0], 1.0 - v.uv[1]]).collect());
+    let colors = has_colors.then(|| {
+        vertices
+            .iter()
+            .map(|v| {
+                [
+                    srgb_to_linear(v.c[0]),
+                    srgb_to_linear(v.c[1]),
+                    srgb_to_linear(v.c[2]),
+                    v.c[3],
+                ]
+            })
+            .collect()
+    });
     drop(vertices);
     let mut builder = Builder::new();
     builder.push_part(
         PartData {
             name: "ply".to_string(),
-            base_color: GREY,
+            base_color: if has_colors { [1.0; 4] } else { GREY },
+            texture: None,
             positions,
             normals,
             uvs,
+            colors,
             triangles,
         },
         FORMAT,

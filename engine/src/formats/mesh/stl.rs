@@ -177,11 +177,11 @@ impl Welder {
                 first_triangle: 0,
                 triangle_count: self.triangles.len(),
                 base_color: GREY,
+                texture: None,
             }],
             positions: self.positions,
             triangles: self.triangles,
-            normals: None,
-            uvs: None,
+            ..Mesh::default()
         }
     }
 }
