@@ -639,3 +639,72 @@ fn golden_wild_brainsmall() {
 fn golden_wild_macaque() {
     golden_wild("inia19_macaque_t1_2x.nrrd", "wild-macaque");
 }
+
+/// A volume with density in every voxel of an `n[0]×n[1]×n[2]` box (the cumulus's shape over a
+/// haze of 5 % of its peak): the whole box is cloud for the ambient edit.
+fn dense(n: [usize; 3]) -> Volume {
+    let m = n.iter().copied().max().unwrap();
+    let c = phenomena_engine::cloud::procedural::cumulus(m);
+    let mut d = Vec::with_capacity(n[0] * n[1] * n[2]);
+    for z in 0..n[2] {
+        for y in 0..n[1] {
+            for x in 0..n[0] {
+                d.push(0.05 + c.density[x + m * (y + m * z)]);
+            }
+        }
+    }
+    Volume::new(n, d, Volume::default_bounds(n)).unwrap()
+}
+
+/// Timings of a whole ambient edit (`apply_edit`: sun transmittance, pins of a 9-pixel-radius
+/// dab at the middle of a 400×300 view, coarse solve, upsampling), κ chosen beforehand, on a
+/// dense 128³ box, a dense 292³ (≈ 24.9 M voxels) box and the held-out frog mask (500×470×136,
+/// 32 M voxels) if present. Not an assertion (no timed assertions in tests): run with
+/// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture ambient_edit_timings`.
+#[test]
+#[ignore]
+fn ambient_edit_timings() {
+    use std::time::Instant;
+    let (w, h) = (400u32, 300u32);
+    let px: Vec<[u32; 2]> = (0..w * h)
+        .map(|i| [i % w, i / w])
+        .filter(|p| (f64::from(p[0]) - 200.0).hypot(f64::from(p[1]) - 150.0) <= 9.0)
+        .collect();
+    let e = Edit::from_json(
+        "ambient",
+        &json!({"width": w, "height": h, "strokes": [{"color": "#ff4020", "pixels": px}]}),
+        &Limits::default(),
+    )
+    .unwrap();
+    let mut cases: Vec<(String, Volume)> = vec![
+        (
+            "cumulus 128³".into(),
+            phenomena_engine::cloud::procedural::cumulus(128),
+        ),
+        ("dense 128³".into(), dense([128; 3])),
+        ("dense 292³".into(), dense([292; 3])),
+    ];
+    if let Ok(b) = std::fs::read("/work/heldout/volume/frog_body_mask_u8.nrrd") {
+        cases.push(("frog mask 500×470×136".into(), volume_of(&b, "frog.nrrd")));
+    }
+    for (name, v) in cases {
+        let t = Instant::now();
+        let s = CloudState::default().resolved(&v);
+        let choose = t.elapsed();
+        let mut times = Vec::new();
+        for _ in 0..3 {
+            let t = Instant::now();
+            let out = apply_edit(&v, &s, None, &e, &NoControl).unwrap();
+            times.push(t.elapsed().as_secs_f64());
+            assert!(out.ambient.is_some());
+        }
+        times.sort_by(f64::total_cmp);
+        eprintln!(
+            "{name} ({} voxels): κ chosen in {:.3} s; ambient edit min {:.3} s, median {:.3} s",
+            v.len(),
+            choose.as_secs_f64(),
+            times[0],
+            times[1]
+        );
+    }
+}
