@@ -22,7 +22,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use phenomena_engine::cloud::edit::ambient::cloud_voxels;
-use phenomena_engine::cloud::edit::{recolor, sun_color, sun_direction, Edit};
+use phenomena_engine::cloud::edit::{apply_edit, recolor, sun_color, sun_direction, Edit};
 use phenomena_engine::cloud::layers::{identity, Layers};
 use phenomena_engine::cloud::light::SunLight;
 use phenomena_engine::cloud::march::{render_layers, Prepared};
@@ -65,11 +65,15 @@ fn render_full(v: &Volume, s: &CloudState, view: &View) -> f32 {
 fn bench_render(c: &mut Criterion) {
     let mut g = c.benchmark_group("cloud");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
-    let s = CloudState::default();
+    // κ = 120, the former default, so the figures stay comparable with earlier sessions.
+    let s = CloudState {
+        kappa: Some(120.0),
+        ..CloudState::default()
+    };
     let sm = smoke();
     let cu = cumulus(256);
     g.bench_function("light_sweep_256", |b| {
-        b.iter(|| SunLight::compute(&cu, s.sun_direction, s.kappa, &NoControl).unwrap())
+        b.iter(|| SunLight::compute(&cu, s.sun_direction, 120.0, &NoControl).unwrap())
     });
     g.bench_function("prepare_lit_256", |b| {
         b.iter(|| Prepared::lit(&cu, &s, None, &NoControl).unwrap())
@@ -93,7 +97,11 @@ fn bench_render(c: &mut Criterion) {
 fn bench_edits(c: &mut Criterion) {
     let mut g = c.benchmark_group("cloud");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
-    let s = CloudState::default();
+    // κ = 120, the former default, so the figures stay comparable with earlier sessions.
+    let s = CloudState {
+        kappa: Some(120.0),
+        ..CloudState::default()
+    };
     let cu = cumulus(256);
     let view = view(1024, 1024);
     // The sun-colour edit marching its ~2,000 painted rays, with the prepared sources reused
@@ -149,8 +157,12 @@ type Pins = Vec<(usize, [f32; 3])>;
 /// The ambient problem: guide = sun transmittance, pins = two painted blobs of cloud voxels.
 fn ambient_problem(n: usize) -> (Volume, Vec<f32>, Pins) {
     let v = cumulus(n);
-    let s = CloudState::default();
-    let light = SunLight::compute(&v, s.sun_direction, s.kappa, &NoControl).unwrap();
+    // κ = 120, the former default, so the figures stay comparable with earlier sessions.
+    let s = CloudState {
+        kappa: Some(120.0),
+        ..CloudState::default()
+    };
+    let light = SunLight::compute(&v, s.sun_direction, 120.0, &NoControl).unwrap();
     let pins = cumulus_pins(&v);
     (v, light.transmittance, pins)
 }
@@ -302,5 +314,78 @@ fn bench_ambient(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_render, bench_edits, bench_ambient);
+/// A volume with density in every voxel of an `n[0]×n[1]×n[2]` box: the cumulus's shape over a
+/// haze of 5 % of its peak, so the whole box is cloud for the ambient edit (ρ ≥ 1 % of the
+/// maximum): the dense worst case.
+fn dense(n: [usize; 3]) -> Volume {
+    let m = n.iter().copied().max().unwrap();
+    let c = cumulus(m);
+    let mut d = Vec::with_capacity(n[0] * n[1] * n[2]);
+    for z in 0..n[2] {
+        for y in 0..n[1] {
+            for x in 0..n[0] {
+                d.push(0.05 + c.density[x + m * (y + m * z)]);
+            }
+        }
+    }
+    Volume::new(n, d, Volume::default_bounds(n)).unwrap()
+}
+
+/// The held-out frog mask (500×470×136, ≈ 32 M voxels), if present.
+fn frog() -> Option<Volume> {
+    let bytes = std::fs::read("/work/heldout/volume/frog_body_mask_u8.nrrd").ok()?;
+    let v = decode_volume(&bytes, Some("frog.nrrd"), &VolumeOptions::default()).ok()?;
+    Some(Volume::new(v.dims, v.density, Volume::default_bounds(v.dims)).unwrap())
+}
+
+/// A whole ambient edit as the job applies it (`apply_edit`: the sun transmittance, the pins of
+/// a 9-pixel-radius dab at the middle of a 400×300 view, the propagation on the coarse grid and
+/// its upsampling), with κ chosen from the volume beforehand (the scene's version 1 has it).
+fn bench_ambient_edit(c: &mut Criterion) {
+    let mut g = c.benchmark_group("cloud");
+    g.sample_size(10).measurement_time(Duration::from_secs(20));
+    let big = std::env::var("CLOUD_BENCH_BIG").as_deref() == Ok("1");
+    let mut cases: Vec<(&str, Volume)> = vec![
+        ("ambient_edit_cumulus_128", cumulus(128)),
+        ("ambient_edit_dense_128", dense([128; 3])),
+    ];
+    if big {
+        // 292³ ≈ 24.9 M voxels, all cloud.
+        cases.push(("ambient_edit_dense_25m", dense([292; 3])));
+        if let Some(f) = frog() {
+            cases.push(("ambient_edit_frog_32m", f));
+        }
+    }
+    let (w, h) = (400u32, 300u32);
+    let px: Vec<[u32; 2]> = (0..w * h)
+        .map(|i| [i % w, i / w])
+        .filter(|p| (f64::from(p[0]) - 200.0).hypot(f64::from(p[1]) - 150.0) <= 9.0)
+        .collect();
+    let e = Edit::from_json(
+        "ambient",
+        &json!({"width": w, "height": h, "strokes": [{"color": "#ff4020", "pixels": px}]}),
+        &Limits::default(),
+    )
+    .unwrap();
+    for (name, v) in cases {
+        let s = CloudState::default().resolved(&v);
+        g.bench_function(name, |b| {
+            b.iter(|| apply_edit(&v, &s, None, &e, &NoControl).unwrap())
+        });
+    }
+    // What choosing κ costs (once per scene upload, or per one-shot render without κ).
+    let cu = cumulus(256);
+    g.bench_function("kappa_choose_256", |b| {
+        b.iter(|| phenomena_engine::cloud::kappa::choose(&cu, CloudState::default().sun_direction))
+    });
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_render,
+    bench_edits,
+    bench_ambient,
+    bench_ambient_edit
+);
 criterion_main!(benches);

@@ -185,6 +185,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         Err(RunError::Input(e)) => return Err(e.into()),
         Err(RunError::Param(e)) => return Err(e.into()),
         Err(RunError::Unprocessable(m)) => return Err(CliError::Unprocessable(m)),
+        Err(e @ RunError::Refused { .. }) => return Err(CliError::Unprocessable(e.to_string())),
     };
     std::fs::create_dir_all(&args.out).map_err(|source| CliError::Io {
         path: args.out.clone(),

@@ -19,6 +19,13 @@ pub enum RunError {
     /// sky); the message is for the user.
     #[error("{0}")]
     Unprocessable(String),
+    /// Unprocessable with a problem type of its own (the last part of its URI) and title.
+    #[error("{detail}")]
+    Refused {
+        problem: &'static str,
+        title: &'static str,
+        detail: String,
+    },
 }
 
 impl From<Canceled> for RunError {
@@ -145,6 +152,15 @@ impl PipelineSet for EnginePipelines {
         pipeline::run(&job, ctl).map_err(|e| match e {
             RunFailure::Canceled => RunError::Canceled,
             RunFailure::Unprocessable(m) => RunError::Unprocessable(m),
+            RunFailure::Refused {
+                problem,
+                title,
+                detail,
+            } => RunError::Refused {
+                problem,
+                title,
+                detail,
+            },
         })
     }
 

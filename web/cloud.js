@@ -62,6 +62,14 @@ export function initEditor(panel, spec) {
   const ambColor = el("input", { type: "color", id: "ambient-color", value: "#4060ff" });
   const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo, "aria-keyshortcuts": "Control+Z", title: "Undo (Ctrl+Z)" }, "Undo");
   const redoBtn = el("button", { type: "button", class: "secondary", id: "redo", onclick: redo, "aria-keyshortcuts": "Control+Shift+Z Control+Y", title: "Redo (Ctrl+Shift+Z or Ctrl+Y)" }, "Redo");
+  // Direct settings (the `set` edit): κ, the sun's azimuth and elevation, the sun colour. They
+  // show the current version's values and apply as a new version.
+  const kappaIn = el("input", { type: "number", id: "set-kappa", min: 0, max: 10000, step: "any", "aria-describedby": "set-kappa-how" });
+  const kappaHow = el("span", { id: "set-kappa-how", class: "hint" });
+  const azIn = el("input", { type: "number", id: "set-sun-az", min: 0, max: 360, step: 1 });
+  const elIn = el("input", { type: "number", id: "set-sun-el", min: -90, max: 90, step: 1 });
+  const sunIn = el("input", { type: "color", id: "set-sun-color", value: "#fff8f0" });
+  const applyBtn = el("button", { type: "button", id: "set-apply", onclick: applySettings }, "Apply settings");
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
   const note = (m) => { status.textContent = m; status.classList.remove("error"); };
 
@@ -88,8 +96,41 @@ export function initEditor(panel, spec) {
     panel.dataset.current = String(st.current);
     const cur = version(st.current);
     stateBox.textContent = cur && cur.state ? JSON.stringify(cur.state, null, 1) : "";
+    if (cur && cur.state) showSettings(cur.state);
     undoBtn.disabled = !(cur && cur.parent);
     redoBtn.disabled = st.redo.length === 0;
+  }
+
+  // Linear ↔ sRGB hex for the sun colour (the state holds linear RGB; values over 1 are shown
+  // clipped).
+  const toSrgb = (c) => { const v = Math.max(0, Math.min(1, c)); return v <= 0.0031308 ? 12.92 * v : 1.055 * v ** (1 / 2.4) - 0.055; };
+  const hex = (rgb) => "#" + rgb.map((c) => Math.round(toSrgb(c) * 255).toString(16).padStart(2, "0")).join("");
+  function showSettings(state) {
+    if (typeof state.kappa === "number") kappaIn.value = String(Number(state.kappa.toPrecision(4)));
+    kappaHow.textContent = state.kappa_auto ? " (chosen from the volume: median optical depth " + state.kappa_auto.optical_depth + ")" : " (given)";
+    const d = state.sun_direction;
+    if (Array.isArray(d)) {
+      const elv = Math.asin(Math.max(-1, Math.min(1, d[1]))) * 180 / Math.PI;
+      const az = ((Math.atan2(d[0], -d[2]) * 180 / Math.PI) + 360) % 360;
+      azIn.value = azIn.dataset.shown = String(Math.round(az));
+      elIn.value = elIn.dataset.shown = String(Math.round(elv));
+    }
+    if (Array.isArray(state.sun_color)) sunIn.value = sunIn.dataset.shown = hex(state.sun_color);
+  }
+  function applySettings() {
+    if (!st.scene || st.busy) return;
+    const cur = version(st.current);
+    const body = {};
+    const k = Number(kappaIn.value);
+    if (kappaIn.value !== "" && (!cur || !cur.state || Math.abs(k - cur.state.kappa) > 1e-9 * Math.max(1, Math.abs(k)))) body.kappa = k;
+    const before = { az: azIn.dataset.shown, el: elIn.dataset.shown, sun: sunIn.dataset.shown };
+    if (azIn.value !== before.az || elIn.value !== before.el) {
+      body.sun_azimuth_deg = Number(azIn.value);
+      body.sun_elevation_deg = Number(elIn.value);
+    }
+    if (sunIn.value !== before.sun) body.sun_color = sunIn.value;
+    if (!Object.keys(body).length) return note("Nothing to apply: change κ, the sun or its colour first.");
+    edit("set", body);
   }
 
   async function job(resp) {
@@ -422,7 +463,12 @@ export function initEditor(panel, spec) {
             tool("sun-direction", "Shadow drag"),
             tool("orbit", "Orbit camera"))),
         bar, status,
-        el("div", { class: "stage" }, img, canvas, cursor), help),
+        el("div", { class: "stage" }, img, canvas, cursor), help,
+        el("fieldset", { class: "settings" }, el("legend", {}, "Settings"),
+          el("label", { for: "set-kappa" }, "Extinction κ "), kappaIn, kappaHow, el("br"),
+          el("label", { for: "set-sun-az" }, "Sun azimuth (°) "), azIn, " ",
+          el("label", { for: "set-sun-el" }, "elevation (°) "), elIn, el("br"),
+          el("label", { for: "set-sun-color" }, "Sun colour "), sunIn, " ", applyBtn)),
       el("div", { class: "area-more" },
         el("h3", {}, "Versions (", count, ")"),
         el("div", { class: "toolbar" }, undoBtn, redoBtn),

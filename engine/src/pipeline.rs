@@ -267,6 +267,15 @@ pub enum RunFailure {
     /// the message is for the user.
     #[error("{0}")]
     Unprocessable(String),
+    /// Like `Unprocessable`, with a problem type of its own (a stroke that misses the cloud vs
+    /// one on cloud that no sunlight reaches).
+    #[error("{detail}")]
+    Refused {
+        /// The problem type: the last part of its URI (`stroke-misses-cloud`, …).
+        problem: &'static str,
+        title: &'static str,
+        detail: String,
+    },
 }
 
 impl From<Canceled> for RunFailure {
@@ -402,12 +411,21 @@ pub fn describe(job: &Job) -> serde_json::Value {
     match job {
         Job::Cloud { volume, .. } | Job::CloudEdit { volume, .. } => {
             let (min, max, mean) = volume.stats();
-            serde_json::json!({
+            let mut info = serde_json::json!({
                 "dims": volume.dims,
                 "bounds": [volume.bounds.0, volume.bounds.1],
                 "voxel_size": volume.voxel_size(),
                 "density": {"min": min, "max": max, "mean": mean},
-            })
+            });
+            // κ as the render's state resolves it (chosen from the volume when not given).
+            if let Job::Cloud { params, .. } = job {
+                let s = params.state.resolved(volume);
+                info["kappa"] = serde_json::json!(s.kappa);
+                if let Some(c) = s.kappa_auto {
+                    info["kappa_auto"] = serde_json::to_value(c).unwrap_or_default();
+                }
+            }
+            info
         }
         _ => serde_json::Value::Null,
     }
@@ -417,7 +435,14 @@ pub fn describe(job: &Job) -> serde_json::Value {
 fn edit_failure(e: cloud::EditError) -> RunFailure {
     match e {
         cloud::EditError::Canceled => RunFailure::Canceled,
-        other => RunFailure::Unprocessable(other.to_string()),
+        other => match other.problem() {
+            Some((problem, title)) => RunFailure::Refused {
+                problem,
+                title,
+                detail: other.to_string(),
+            },
+            None => RunFailure::Unprocessable(other.to_string()),
+        },
     }
 }
 

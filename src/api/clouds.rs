@@ -33,7 +33,8 @@ const VIEW_KEYS: &[&str] = &["width", "height", "camera", "layers", "seed"];
 /// Parameters that tell the decoder how to read the volume, fixed at upload.
 const INPUT_KEYS: &[&str] = &["bounds", "dims"];
 /// The edit modes (SPEC §3.1–3.3), as they appear in the route.
-const EDIT_KINDS: &[&str] = &["sun-color", "ambient", "sun-direction"];
+/// `set` gives κ, the sun direction or the sun colour directly.
+const EDIT_KINDS: &[&str] = &["sun-color", "ambient", "sun-direction", "set"];
 /// The render layer a scene render always adds, and its output: the linear layers a later
 /// sun-colour edit at that view reads (`phenomena_engine::cloud::layers`).
 const LINEAR: &str = "linear";
@@ -146,6 +147,16 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
             }
         } else if !VIEW_KEYS.contains(&k.as_str()) {
             state.insert(k, v);
+        }
+    }
+    // κ left open: the one the decoder chose from the volume ([`describe_input`]), stated with
+    // its rule, so every version of the scene renders with it.
+    if state.get("kappa").is_none_or(Value::is_null) {
+        if let Some(k) = info.get("kappa").filter(|k| k.is_number()) {
+            state.insert("kappa".into(), k.clone());
+            if let Some(c) = info.get("kappa_auto") {
+                state.insert("kappa_auto".into(), c.clone());
+            }
         }
     }
     let volume = InputRef {

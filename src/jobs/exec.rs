@@ -256,6 +256,14 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
             rec.status = Status::Failed;
             rec.error = Some(failure("unprocessable", "Cannot be done", msg));
         }
+        Ok(Ok(Err(RunError::Refused {
+            problem,
+            title,
+            detail,
+        }))) => {
+            rec.status = Status::Failed;
+            rec.error = Some(failure(problem, title, detail));
+        }
         Ok(Ok(Err(RunError::Param(e)))) => {
             rec.status = Status::Failed;
             rec.error = Some(failure(

@@ -415,6 +415,94 @@ async fn bad_edits_and_scenes_are_clear_errors() {
     problem(r, 404, "not-found").await;
 }
 
+/// Issue 18 over HTTP: a real 0/255 mask (the frog, 4× reduced; `tests/data/volume`) uploaded with
+/// no parameters gets a κ chosen from it, stated in version 1's state; the `set` edit gives κ
+/// and the sun directly; a stroke on empty sky and a stroke on unlit cloud fail with their own
+/// problem types.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mask_scene_chooses_its_kappa_and_tells_its_refusals_apart() {
+    let spec = spec();
+    let s = start(|_| {}).await;
+    let mask = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/volume/frog_body_mask_4x.nrrd"
+    ))
+    .unwrap();
+    let form = reqwest::multipart::Form::new()
+        .text("params", "{}")
+        .part(
+            "volume",
+            reqwest::multipart::Part::bytes(mask).file_name("frog.nrrd"),
+        );
+    let r = s
+        .client
+        .post(s.url("/v1/clouds"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let scene = checked(&spec, "post", "/v1/clouds", r).await;
+    let id = scene["id"].as_str().unwrap().to_string();
+    let v1 = &scene["versions"][0]["state"];
+    let kappa = v1["kappa"].as_f64().unwrap();
+    // 0/255 densities: κ far below the former fixed default of 120.
+    assert!(kappa > 0.0 && kappa < 1.0, "{v1}");
+    assert_eq!(scene["info"]["kappa"], v1["kappa"]);
+    assert_eq!(v1["kappa_auto"]["optical_depth"], json!(4.0));
+
+    // Paint on the sky: "misses the cloud".
+    let v = edit(
+        &s,
+        &spec,
+        &id,
+        "sun-color",
+        with_view(json!({"strokes": [{"color": "#ffffff", "pixels": block(1, 1)}]})),
+    )
+    .await;
+    assert_eq!(v["status"], "failed", "{v}");
+    assert_eq!(
+        v["error"]["type"],
+        "https://phenomena.dev/problems/stroke-misses-cloud"
+    );
+    // κ 500× and the sun below: the cloud seen from above is not lit.
+    let v = edit(
+        &s,
+        &spec,
+        &id,
+        "set",
+        json!({"base_version": 1, "width": VIEW.0, "height": VIEW.1,
+               "camera": {"azimuth_deg": 180, "elevation_deg": 70},
+               "kappa": kappa * 500.0, "sun_azimuth_deg": 0, "sun_elevation_deg": -90}),
+    )
+    .await;
+    assert_eq!(v["status"], "ready", "{v}");
+    assert_eq!(v["kind"], "set");
+    assert_eq!(v["state"]["kappa"], json!(kappa * 500.0));
+    assert!(v["state"].get("kappa_auto").is_none(), "{v}");
+    let dark = v["version"].as_u64().unwrap();
+    let (cx, cy) = (VIEW.0 as i64 / 2, VIEW.1 as i64 / 2);
+    let v = edit(
+        &s,
+        &spec,
+        &id,
+        "sun-color",
+        json!({"base_version": dark, "width": VIEW.0, "height": VIEW.1,
+               "camera": {"azimuth_deg": 180, "elevation_deg": 70},
+               "strokes": [{"color": "#ffffff", "pixels": block(cx, cy)}]}),
+    )
+    .await;
+    assert_eq!(v["status"], "failed", "{v}");
+    assert_eq!(
+        v["error"]["type"],
+        "https://phenomena.dev/problems/stroke-not-lit"
+    );
+    assert_eq!(
+        v["error"]["detail"],
+        "nothing under the stroke is lit by the sun: move the sun or lower κ"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scenes_survive_a_restart() {
     let s = start(|_| {}).await;

@@ -122,7 +122,7 @@ struct Identity<'a> {
     width: u32,
     height: u32,
     camera: &'a CameraSpec,
-    kappa: f64,
+    kappa: Option<f64>,
     sun_direction: [f64; 3],
     ambient: [f64; 3],
     ambient_scale: f64,

@@ -218,7 +218,13 @@ impl Prepared {
             Some(f) => Sources::Field(padded(dims, |i| field_source(rho[i], tsun[i], f[i], scale))),
             None => Sources::Uniform(padded(dims, |i| [rho[i], rho[i] * tsun[i]])),
         };
-        Self::with_sources(volume, &DensityRows::of(volume), sources, state)
+        Self::with_sources(
+            volume,
+            &DensityRows::of(volume),
+            sources,
+            state,
+            light.kappa,
+        )
     }
 
     /// [`SunLight::compute`] and [`Prepared::new`] in one: the sweep writes ρ·T_sun straight
@@ -235,7 +241,8 @@ impl Prepared {
         let pad = dims.map(|n| n + 2);
         let cells = pad[0] * pad[1] * pad[2];
         let rows = DensityRows::of(volume);
-        let (dir, kappa, rho) = (state.sun_direction, state.kappa, &volume.density);
+        let kappa = state.kappa_for(volume);
+        let (dir, rho) = (state.sun_direction, &volume.density);
         let scale = state.ambient_scale as f32;
         let sources = match field_of(volume, ambient) {
             Some(f) => {
@@ -265,7 +272,7 @@ impl Prepared {
                 Sources::Uniform(src)
             }
         };
-        Ok(Self::with_sources(volume, &rows, sources, state))
+        Ok(Self::with_sources(volume, &rows, sources, state, kappa))
     }
 
     fn with_sources(
@@ -273,6 +280,7 @@ impl Prepared {
         rows: &DensityRows,
         sources: Sources,
         state: &CloudState,
+        kappa: f64,
     ) -> Self {
         let frame = GridFrame::of(volume);
         let empty = EmptySpace::build(rows);
@@ -291,7 +299,7 @@ impl Prepared {
             occupied,
             ambient_uniform: state.ambient.map(|v| v as f32),
             empty,
-            kappa: state.kappa as f32,
+            kappa: kappa as f32,
             step: state.step,
             sun: state.sun_direction,
             anisotropy: state.anisotropy,

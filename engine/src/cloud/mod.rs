@@ -12,6 +12,7 @@
 pub mod edit;
 pub mod fastexp;
 pub mod grid;
+pub mod kappa;
 pub mod layers;
 pub mod light;
 pub mod march;

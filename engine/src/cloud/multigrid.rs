@@ -130,6 +130,12 @@ pub struct SolveOptions {
     /// (1 sweep: 5.3–6.4× per iteration on the 32³ cumulus but the first iterations of larger
     /// grids below 5×; 3: no better per unit of work).
     pub smoothing: usize,
+    /// Screening λ ≥ 0 added to every unknown's diagonal: the system becomes
+    /// `Σ_s a_rs (U_r − U_s) + λ U_r = (pins' terms)`, each unknown tied to 0 with weight λ, so
+    /// what the pins impose decays with the distance from them, over about 1/√λ voxels where
+    /// the affinities are ≈ 1 (the ambient edit propagates a *change* this way: see
+    /// [`crate::cloud::edit::ambient`]). Default 0: LLW's system as it is.
+    pub screening: f32,
 }
 
 impl Default for SolveOptions {
@@ -138,6 +144,7 @@ impl Default for SolveOptions {
             tolerance: 1e-6,
             max_iterations: 30,
             smoothing: 2,
+            screening: 0.0,
         }
     }
 }
@@ -322,7 +329,7 @@ pub fn propagate(
         fine,
         pin_at,
         colours,
-    }) = set_up(dims, guide, cloud, pins)
+    }) = set_up(dims, guide, cloud, pins, opts.screening)
     else {
         return Ok(((0..n).into_par_iter().map(fill).collect(), stats));
     };
@@ -369,6 +376,7 @@ fn set_up(
     guide: &[f32],
     cloud: Option<&[bool]>,
     pins: &[(usize, [f32; 3])],
+    screening: f32,
 ) -> Option<Setup> {
     let n = guide.len();
     if n == 0 || n != dims[0] * dims[1] * dims[2] || cloud.is_some_and(|d| d.len() != n) {
@@ -396,7 +404,7 @@ fn set_up(
         None => vec![true; n],
     };
     let a = llw::llw_weights_in(dims, guide, mask.then_some(&cloud[..]));
-    let fine = fine_level(dims, &a, &cloud, &pin_at, &colours);
+    let fine = fine_level(dims, &a, &cloud, &pin_at, &colours, screening);
     Some(Setup {
         fine,
         pin_at,
@@ -425,7 +433,7 @@ pub fn llw_system(
     cloud: Option<&[bool]>,
     pins: &[(usize, [f32; 3])],
 ) -> LlwSystem {
-    match set_up(dims, guide, cloud, pins) {
+    match set_up(dims, guide, cloud, pins, 0.0) {
         Some(Setup { fine, .. }) => LlwSystem {
             ptr: fine.op.ptr,
             col: fine.op.col,

@@ -46,26 +46,25 @@ pub fn state_json(state: &CloudState) -> Output {
 }
 
 /// Runs the pipeline. `ambient` is the version's field (a field whose length is not the
-/// volume's voxel count is ignored: uniform ambient).
+/// volume's voxel count is ignored: uniform ambient). A κ left open is chosen from the volume
+/// ([`super::kappa`]) and `state.json` states the value and the rule.
 pub fn run(
     volume: &Volume,
     params: &Params,
     ambient: Option<&AmbientField>,
     ctl: &dyn Control,
 ) -> Result<Vec<Output>, Canceled> {
-    let layers = render(volume, &params.state, ambient, &params.view(), ctl)?;
-    let mut out = vec![
-        render_png(&layers, &params.state),
-        state_json(&params.state),
-    ];
-    let sun = sun_f32(&params.state);
+    let state = params.state.resolved(volume);
+    let layers = render(volume, &state, ambient, &params.view(), ctl)?;
+    let mut out = vec![render_png(&layers, &state), state_json(&state)];
+    let sun = sun_f32(&state);
     for l in &params.layers {
         // Layers are for compositing: straight alpha, no background.
         let (name, show) = match l {
             Layer::Direct => ("direct.png", Show::Direct),
             Layer::Ambient => ("ambient.png", Show::Ambient),
             Layer::Linear => {
-                let id = identity(&params.view(), &params.state);
+                let id = identity(&params.view(), &state);
                 out.push(layers_bin(layers.to_bytes(&id)));
                 continue;
             }

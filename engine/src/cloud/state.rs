@@ -7,6 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::kappa::{self, KappaChoice};
+use crate::geom::Volume;
 use crate::params::{parse_hex_color, range};
 use crate::render::terrain::sun_direction as sun_from_angles;
 use crate::{InputError, ParamError};
@@ -16,9 +18,15 @@ use crate::{InputError, ParamError};
 #[serde(deny_unknown_fields)]
 pub struct CloudState {
     /// Extinction κ per unit density per world unit (the box's longest side is 1 world unit by
-    /// default), 0–10,000. Default 120: chosen on the OpenVDB smoke sample (mean density 0.062,
-    /// 222 voxels tall), whose thin wisps then stay translucent and the core opaque.
-    pub kappa: f64,
+    /// default), 0–10,000. Default null: chosen from the volume so that the median optical depth
+    /// through the cloud along the sun and view rays is 4 ([`super::kappa`]); the chosen value
+    /// is written here and the rule in `kappa_auto`. An explicit κ wins.
+    pub kappa: Option<f64>,
+    /// How κ was chosen when it was chosen from the volume ([`KappaChoice`]: the rule, the
+    /// optical depth aimed at, the median column density, the rays); null when κ was given.
+    /// Informational: carried with `kappa`, dropped when κ is given anew. Default null.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kappa_auto: Option<KappaChoice>,
     /// Unit vector toward the sun, world frame (X east, Y up, Z south). Default: azimuth 150°,
     /// elevation 35° (`sun_azimuth_deg`/`sun_elevation_deg` are accepted on the wire instead).
     pub sun_direction: [f64; 3],
@@ -46,7 +54,8 @@ pub struct CloudState {
 impl Default for CloudState {
     fn default() -> Self {
         Self {
-            kappa: 120.0,
+            kappa: None,
+            kappa_auto: None,
             sun_direction: sun_from_angles(150.0, 35.0),
             sun_color: [1.0, 0.97, 0.92],
             ambient: [0.25, 0.30, 0.40],
@@ -63,6 +72,7 @@ impl Default for CloudState {
 #[serde(deny_unknown_fields)]
 pub(crate) struct WireState {
     pub kappa: Option<f64>,
+    pub kappa_auto: Option<KappaChoice>,
     pub sun_direction: Option<[f64; 3]>,
     pub sun_azimuth_deg: Option<f64>,
     pub sun_elevation_deg: Option<f64>,
@@ -78,6 +88,7 @@ pub(crate) struct WireState {
 /// parameters on these).
 pub(crate) const STATE_FIELDS: &[&str] = &[
     "kappa",
+    "kappa_auto",
     "sun_direction",
     "sun_azimuth_deg",
     "sun_elevation_deg",
@@ -157,8 +168,14 @@ impl CloudState {
             }
             None => None,
         };
+        let kappa = match w.kappa {
+            Some(k) => Some(range("kappa", Some(k), k, 0.0, 10_000.0)?),
+            None => None,
+        };
         Ok(Self {
-            kappa: range("kappa", w.kappa, d.kappa, 0.0, 10_000.0)?,
+            kappa,
+            // A statement about a κ that was chosen: meaningless without that κ.
+            kappa_auto: w.kappa_auto.filter(|_| kappa.is_some()),
             sun_direction,
             sun_color: color3("sun_color", w.sun_color, d.sun_color)?,
             ambient: color3("ambient", w.ambient, d.ambient)?,
@@ -173,6 +190,28 @@ impl CloudState {
             background,
             step: range("step", w.step, d.step, 0.1, 4.0)?,
         })
+    }
+
+    /// κ, chosen from `volume` when the state leaves it open ([`super::kappa::choose`]).
+    pub fn kappa_for(&self, volume: &Volume) -> f64 {
+        match self.kappa {
+            Some(k) => k,
+            None => kappa::choose(volume, self.sun_direction).0,
+        }
+    }
+
+    /// The state with κ resolved: unchanged when κ is given, else κ chosen from `volume` and
+    /// the choice stated in `kappa_auto`.
+    pub fn resolved(&self, volume: &Volume) -> Self {
+        if self.kappa.is_some() {
+            return self.clone();
+        }
+        let (k, choice) = kappa::choose(volume, self.sun_direction);
+        Self {
+            kappa: Some(k),
+            kappa_auto: Some(choice),
+            ..self.clone()
+        }
     }
 
     /// The background as sRGB bytes (validated when the state was built; `None` if absent).

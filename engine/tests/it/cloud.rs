@@ -101,6 +101,7 @@ fn clip_ref(v: &Volume, o: [f64; 3], d: [f64; 3]) -> Option<(f64, f64)> {
 /// Brute force: midpoint sums with fine steps, sun transmittance marched from every sample, no
 /// precomputation. Returns the premultiplied linear radiance and alpha.
 fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) -> ([f64; 3], f64) {
+    let kappa = s.kappa.expect("the reference takes a given κ");
     let Some((t0, t1)) = clip_ref(v, o, d) else {
         return ([0.0; 3], 0.0);
     };
@@ -113,7 +114,7 @@ fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) ->
         if rho > 0.0 {
             // View transmittance at the sample (the middle of its step): midpoint rule, so the
             // reference's own error is O(dt²) also in dense media.
-            let g = (-s.kappa * (tau + 0.5 * rho * dt)).exp();
+            let g = (-kappa * (tau + 0.5 * rho * dt)).exp();
             // Sun transmittance: march toward the sun.
             let (_, ts) = clip_ref(v, p, s.sun_direction).unwrap_or((0.0, 0.0));
             let mut st = 0.0;
@@ -123,15 +124,15 @@ fn brute_force(v: &Volume, s: &CloudState, o: [f64; 3], d: [f64; 3], dt: f64) ->
                 st += trilinear_ref(v, q) * dt;
                 u += dt;
             }
-            let tsun = (-s.kappa * st).exp();
+            let tsun = (-kappa * st).exp();
             for (q, r) in rad.iter_mut().enumerate() {
-                *r += s.kappa * rho * g * (s.sun_color[q] * tsun + s.ambient[q]) * dt;
+                *r += kappa * rho * g * (s.sun_color[q] * tsun + s.ambient[q]) * dt;
             }
         }
         tau += rho * dt;
         t += dt;
     }
-    (rad, 1.0 - (-s.kappa * tau).exp())
+    (rad, 1.0 - (-kappa * tau).exp())
 }
 
 #[test]
@@ -156,7 +157,7 @@ fn the_default_step_converges() {
     for kappa in [2.0, 30.0] {
         let render = |step: f64| {
             let state = CloudState {
-                kappa,
+                kappa: Some(kappa),
                 step,
                 sun_direction: [0.48, 0.6, 0.64],
                 ..CloudState::default()
@@ -190,14 +191,14 @@ fn the_default_step_converges() {
 fn brute_force_error(kappa: f64, step: f64) -> (f64, f64) {
     let v = blob(20, 1.0);
     let state = CloudState {
-        kappa,
+        kappa: Some(kappa),
         step,
         sun_direction: [0.48, 0.6, 0.64],
         ..CloudState::default()
     };
     let (w, h) = (40u32, 30u32);
     let camera = Camera::orbit([0.0; 3], 30.0, 20.0, 4.5, 40.0);
-    let light = SunLight::compute(&v, state.sun_direction, state.kappa, &NoControl).unwrap();
+    let light = SunLight::compute(&v, state.sun_direction, kappa, &NoControl).unwrap();
     let prep = Prepared::new(&v, &light, &state, None);
     let layers = render_layers(&prep, &camera, w, h, &NoControl).unwrap();
     let rg = camera.ray_gen(w, h);
@@ -231,7 +232,7 @@ fn homogeneous_slab_transmittance_is_analytic() {
     .unwrap();
     for kappa in [0.5, 3.0, 10.0] {
         let state = CloudState {
-            kappa,
+            kappa: Some(kappa),
             sun_direction: [0.0, 1.0, 0.0],
             ..CloudState::default()
         };
@@ -336,13 +337,12 @@ fn fused_preparation_matches_the_two_steps() {
     ] {
         let n: f64 = sun.iter().map(|x: &f64| x * x).sum::<f64>().sqrt();
         let state = CloudState {
-            kappa: 20.0,
+            kappa: Some(20.0),
             sun_direction: sun.map(|x| x / n),
             ..CloudState::default()
         };
         for amb in [None, Some(&field)] {
-            let light =
-                SunLight::compute(&v, state.sun_direction, state.kappa, &NoControl).unwrap();
+            let light = SunLight::compute(&v, state.sun_direction, 20.0, &NoControl).unwrap();
             let two = Prepared::new(&v, &light, &state, amb);
             let fused = Prepared::lit(&v, &state, amb, &NoControl).unwrap();
             let a = render_layers(&two, &camera, 48, 40, &NoControl).unwrap();
@@ -379,7 +379,9 @@ fn same_bytes_across_thread_counts() {
         assert_eq!(x.bytes, y.bytes, "{}", x.name);
     }
     let state: CloudState = serde_json::from_slice(&a[1].bytes).unwrap();
-    assert_eq!(state, p.state);
+    // κ left open: chosen from the volume, stated in state.json.
+    assert_eq!(state, p.state.resolved(&v));
+    assert!(state.kappa.is_some() && state.kappa_auto.is_some());
 }
 
 #[test]

@@ -200,8 +200,12 @@ fn painting_empty_sky_is_refused() {
     )
     .unwrap();
     let err = apply_edit(&v, &CloudState::default(), None, &e, &NoControl).unwrap_err();
-    assert_eq!(err, EditError::NoCover);
-    assert_eq!(err.to_string(), "no painted pixel covers the cloud");
+    assert_eq!(err, EditError::MissesCloud);
+    assert_eq!(
+        err.to_string(),
+        "the stroke misses the cloud: no painted pixel covers it"
+    );
+    assert_eq!(err.problem().unwrap().0, "stroke-misses-cloud");
     let e = Edit::from_json(
         "ambient",
         &with(
@@ -213,7 +217,7 @@ fn painting_empty_sky_is_refused() {
     .unwrap();
     assert_eq!(
         apply_edit(&v, &CloudState::default(), None, &e, &NoControl).unwrap_err(),
-        EditError::NoCover
+        EditError::MissesCloud
     );
 }
 
@@ -315,15 +319,20 @@ fn an_ambient_edit_leaves_what_its_paint_cannot_reach_as_the_base_showed_it() {
         let want = s.ambient.map(|a| (a / 2.0) as f32);
         assert_eq!(f1.rgb[i], want, "slab voxel {i}");
     }
-    // The block took the paint (one colour: all of it).
+    // The block took the paint: its pinned voxels exactly, the rest of it (8 voxels across,
+    // well within the default reach) moved most of the way from the base's ambient toward it.
     let red = [0xff, 0x40, 0x20].map(srgb8_to_linear);
-    for q in 0..3 {
-        assert!(
-            (f1.rgb[block][q] - red[q]).abs() < 1e-4,
-            "{:?}",
-            f1.rgb[block]
-        );
+    for (i, c) in &pins {
+        assert_eq!(f1.rgb[*i], *c);
+        assert!((0..3).all(|q| (c[q] - red[q]).abs() < 1e-6), "{c:?}");
     }
+    let dist = |c: [f32; 3]| (0..3).map(|q| (c[q] - red[q]).powi(2)).sum::<f32>().sqrt();
+    let before = dist(s.ambient.map(|a| (a / 2.0) as f32));
+    assert!(
+        dist(f1.rgb[block]) < 0.5 * before,
+        "{:?} vs base {before}",
+        f1.rgb[block]
+    );
     let v2 = apply_edit(&v, &v1.state, Some(f1), &edit(0.5), &NoControl).unwrap();
     let f2 = v2.ambient.as_ref().unwrap();
     for &i in &slab {
@@ -353,7 +362,7 @@ fn slab_and_block() -> (Volume, CloudState) {
     }
     let v = Volume::new([n; 3], d, ([-0.5, 0.0, -0.5], [0.5, 1.0, 0.5])).unwrap();
     let s = CloudState {
-        kappa: 30.0,
+        kappa: Some(30.0),
         sun_direction: {
             let d = [0.3f64, 1.0, 0.1];
             let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
@@ -398,8 +407,8 @@ fn dragging_the_shadow_puts_q_in_rs_shadow() {
     // Just above Q's voxel, so Q's own density does not count.
     let q = g.center(drag.q);
     let above = [q[0], q[1] + 0.6 * g.h[1], q[2]];
-    let before = transmittance_marched(&v, above, s.sun_direction, s.kappa, 4.0);
-    let after = transmittance_marched(&v, above, out.state.sun_direction, s.kappa, 4.0);
+    let before = transmittance_marched(&v, above, s.sun_direction, 30.0, 4.0);
+    let after = transmittance_marched(&v, above, out.state.sun_direction, 30.0, 4.0);
     assert!(
         before > 0.5 && after < 0.01 * before,
         "T_sun at Q: {before} → {after}"
@@ -679,7 +688,7 @@ fn painted_samples_match_the_full_render() {
     )
     .unwrap();
     let Edit::SunColor(se) = &e else { panic!() };
-    let light = SunLight::compute(&v, s.sun_direction, s.kappa, &NoControl).unwrap();
+    let light = SunLight::compute(&v, s.sun_direction, s.kappa_for(&v), &NoControl).unwrap();
     let prep = Prepared::new(&v, &light, &s, None);
     let samples = sun_color::painted_samples(&prep, &v, se);
     let cam = se.view.camera(v.bounds);

@@ -5,6 +5,7 @@
 mod cloud;
 mod cloud_edit;
 mod cloud_pipeline;
+mod cloud_wild;
 mod descriptor;
 mod dust;
 mod dust_materials;

@@ -4,6 +4,8 @@
 //! - [`sun_color`]: paint → the least-squares sun colour I_l (§3.1, Eq. 6 generalised).
 //! - [`ambient`]: paint → pinned voxels → a propagated per-voxel ambient field (§3.2).
 //! - [`sun_direction`]: drag a shadow from P' to Q' → a new sun direction (§3.3).
+//! - `set` ([`SetEdit`]): κ, the sun direction or the sun colour given directly (not a mode of
+//!   the paper: the way out when κ or the sun leaves nothing lit to paint on).
 //!
 //! Every edit carries the view it was made in (image size and camera, the same wire shape as
 //! the pipeline's), and pixel coordinates are `[x, y]` integers from the top-left, checked to
@@ -51,6 +53,10 @@ pub struct AmbientEdit {
     pub strokes: Vec<Stroke>,
     /// New `ambient_scale` for the version, 0–100; absent = keep the base's.
     pub ambient_scale: Option<f64>,
+    /// How far the painted change spreads from the painted voxels, as a fraction of the box's
+    /// longest side, 0.01–100 ([`ambient`]'s screening). Default 0.25; large values give LLW's
+    /// unbounded propagation (paint of one colour then fills the whole connected cloud).
+    pub reach: f64,
 }
 
 /// Sun direction by dragging a shadow (§3.3): from P' to Q'.
@@ -61,12 +67,26 @@ pub struct SunDirectionEdit {
     pub to: [u32; 2],
 }
 
+/// Direct settings (issue 18: κ, sun direction and sun colour settable in the editor): a new
+/// version with the given values replacing the base's; at least one is given.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetEdit {
+    pub view: View,
+    /// New κ, 0–10,000 (the choice from the volume, `kappa_auto`, is dropped).
+    pub kappa: Option<f64>,
+    /// New unit vector toward the sun.
+    pub sun_direction: Option<[f64; 3]>,
+    /// New sun colour, linear RGB, each 0–100.
+    pub sun_color: Option<[f64; 3]>,
+}
+
 /// An edit of a cloud scene version.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Edit {
     SunColor(SunColorEdit),
     Ambient(AmbientEdit),
     SunDirection(SunDirectionEdit),
+    Set(SetEdit),
 }
 
 /// The new version an edit produced.
@@ -91,12 +111,32 @@ pub enum EditError {
     /// R and Q are the same voxel: no direction.
     #[error("the drag does not move the shadow: the occluder and the target are the same voxel")]
     DragTooShort,
-    /// No painted pixel sees the cloud (or, for the sun colour, none is lit by the sun).
-    #[error("no painted pixel covers the cloud")]
-    NoCover,
+    /// No painted pixel sees the cloud: the stroke is on empty sky. Problem type
+    /// `stroke-misses-cloud`.
+    #[error("the stroke misses the cloud: no painted pixel covers it")]
+    MissesCloud,
+    /// The sun-colour stroke covers the cloud, but the cloud under it receives (almost) no
+    /// sunlight — the direct light Ī of the painted pixels is below 1 % of full sunlight in the
+    /// RMS ([`sun_color::LIT_MIN`]), so no sun colour can give the painted colour there. Problem
+    /// type `stroke-not-lit`.
+    #[error("nothing under the stroke is lit by the sun: move the sun or lower κ")]
+    NotLit,
     /// The stored ambient field does not fit the volume.
     #[error("{0}")]
     Unusable(String),
+}
+
+impl EditError {
+    /// The problem type (the last part of its URI) and title of a refused edit, when the
+    /// refusal has one of its own (the two stroke cases); None for the rest, which are plain
+    /// `unprocessable`.
+    pub fn problem(&self) -> Option<(&'static str, &'static str)> {
+        match self {
+            EditError::MissesCloud => Some(("stroke-misses-cloud", "The stroke misses the cloud")),
+            EditError::NotLit => Some(("stroke-not-lit", "Nothing under the stroke is sunlit")),
+            _ => None,
+        }
+    }
 }
 
 impl From<Canceled> for EditError {
@@ -127,6 +167,7 @@ struct WirePaint {
     camera: Option<WireCamera>,
     strokes: Vec<WireStroke>,
     ambient_scale: Option<f64>,
+    reach: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -137,6 +178,19 @@ struct WireDrag {
     camera: Option<WireCamera>,
     from: [u32; 2],
     to: [u32; 2],
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WireSet {
+    width: Option<u32>,
+    height: Option<u32>,
+    camera: Option<WireCamera>,
+    kappa: Option<f64>,
+    sun_direction: Option<[f64; 3]>,
+    sun_azimuth_deg: Option<f64>,
+    sun_elevation_deg: Option<f64>,
+    sun_color: Option<WireColor>,
 }
 
 fn pixel_inside(field: &str, p: [u32; 2], view: &View) -> Result<(), ParamError> {
@@ -209,6 +263,12 @@ impl Edit {
                             "only the ambient edit takes ambient_scale",
                         ));
                     }
+                    if w.reach.is_some() {
+                        return Err(ParamError::new(
+                            "reach",
+                            "only the ambient edit takes reach",
+                        ));
+                    }
                     Ok(Edit::SunColor(SunColorEdit { view, strokes }))
                 } else {
                     let ambient_scale = match w.ambient_scale {
@@ -221,10 +281,18 @@ impl Edit {
                         )?),
                         None => None,
                     };
+                    let reach = crate::params::range(
+                        "reach",
+                        w.reach,
+                        ambient::DEFAULT_REACH,
+                        0.01,
+                        100.0,
+                    )?;
                     Ok(Edit::Ambient(AmbientEdit {
                         view,
                         strokes,
                         ambient_scale,
+                        reach,
                     }))
                 }
             }
@@ -239,9 +307,65 @@ impl Edit {
                     to: w.to,
                 }))
             }
+            "set" => {
+                let w: WireSet = crate::pipeline::deserialize_params(v)?;
+                let view = View::from_wire(w.width, w.height, w.camera, limits)?;
+                let kappa = match w.kappa {
+                    Some(k) => Some(crate::params::range("kappa", Some(k), k, 0.0, 10_000.0)?),
+                    None => None,
+                };
+                let sun_given = w.sun_direction.is_some()
+                    || w.sun_azimuth_deg.is_some()
+                    || w.sun_elevation_deg.is_some();
+                let sun_direction = if sun_given {
+                    let ws = super::state::WireState {
+                        sun_direction: w.sun_direction,
+                        sun_azimuth_deg: w.sun_azimuth_deg,
+                        sun_elevation_deg: w.sun_elevation_deg,
+                        ..Default::default()
+                    };
+                    Some(CloudState::from_wire(ws)?.sun_direction)
+                } else {
+                    None
+                };
+                let sun_color = match w.sun_color {
+                    None => None,
+                    Some(WireColor::Hex(h)) => Some(
+                        parse_hex_color("sun_color", &h)?
+                            .map(|b| f64::from(srgb_to_linear(f32::from(b) / 255.0))),
+                    ),
+                    Some(WireColor::Rgb(c)) => {
+                        for (k, x) in c.iter().enumerate() {
+                            crate::params::range(
+                                &format!("sun_color[{k}]"),
+                                Some(*x),
+                                0.0,
+                                0.0,
+                                100.0,
+                            )?;
+                        }
+                        Some(c)
+                    }
+                };
+                if kappa.is_none() && sun_direction.is_none() && sun_color.is_none() {
+                    return Err(ParamError::new(
+                        "kappa",
+                        "give at least one of kappa, sun_direction (or sun_azimuth_deg and \
+                         sun_elevation_deg), sun_color",
+                    ));
+                }
+                Ok(Edit::Set(SetEdit {
+                    view,
+                    kappa,
+                    sun_direction,
+                    sun_color,
+                }))
+            }
             other => Err(ParamError::new(
                 "kind",
-                format!("unknown edit {other:?}; expected sun-color, ambient or sun-direction"),
+                format!(
+                    "unknown edit {other:?}; expected sun-color, ambient, sun-direction or set"
+                ),
             )),
         }
     }
@@ -252,6 +376,7 @@ impl Edit {
             Edit::SunColor(e) => &e.view,
             Edit::Ambient(e) => &e.view,
             Edit::SunDirection(e) => &e.view,
+            Edit::Set(e) => &e.view,
         }
     }
 }
@@ -264,6 +389,8 @@ pub fn apply_edit(
     edit: &Edit,
     ctl: &dyn Control,
 ) -> Result<EditOutcome, EditError> {
+    // A κ left open is chosen from the volume once, here, and kept by the new version.
+    let base = &base.resolved(volume);
     if let Some(f) = ambient {
         if f.rgb.len() != volume.len() {
             return Err(EditError::Unusable(format!(
@@ -295,9 +422,23 @@ pub fn apply_edit(
                 ambient: None,
             })
         }
+        Edit::Set(e) => Ok(EditOutcome {
+            state: CloudState {
+                kappa: e.kappa.or(base.kappa),
+                kappa_auto: if e.kappa.is_some() {
+                    None
+                } else {
+                    base.kappa_auto.clone()
+                },
+                sun_direction: e.sun_direction.unwrap_or(base.sun_direction),
+                sun_color: e.sun_color.unwrap_or(base.sun_color),
+                ..base.clone()
+            },
+            ambient: None,
+        }),
         Edit::Ambient(e) => {
             ctl.progress("light", 0.0);
-            let light = SunLight::compute(volume, base.sun_direction, base.kappa, ctl)?;
+            let light = SunLight::compute(volume, base.sun_direction, base.kappa_for(volume), ctl)?;
             ctl.progress("ambient", 0.2);
             let (field, _) = ambient::propagate_paint(volume, &light, e, base, ambient, ctl)?;
             Ok(EditOutcome {

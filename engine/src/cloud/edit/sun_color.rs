@@ -66,8 +66,19 @@ pub fn samples_from_layers(layers: &Layers, edit: &SunColorEdit) -> Vec<([f32; 3
         .collect()
 }
 
-/// Least-squares I_l from the painted samples (see the module doc). `NoCover` when no painted
-/// pixel receives direct light (Σ Ī² = 0).
+/// A painted pixel covers the cloud when its alpha is at least this.
+pub const COVER_MIN: f32 = 0.01;
+
+/// The RMS of the direct light Ī (for a unit sun) over the covered painted pixels below which
+/// the cloud under the stroke counts as not lit: 1 % of full sunlight. Below it the least
+/// squares would divide the paint by a vanishing Ī and clamp the sun colour to its range.
+pub const LIT_MIN: f64 = 0.01;
+
+/// Least-squares I_l from the painted samples (see the module doc). [`EditError::MissesCloud`]
+/// when no painted pixel covers the cloud (α < [`COVER_MIN`] everywhere under the stroke);
+/// [`EditError::NotLit`] when the covered ones receive no sunlight to speak of (RMS Ī <
+/// [`LIT_MIN`]): the first is fixed by painting on the cloud, the second by moving the sun or
+/// lowering κ.
 pub fn solve(
     samples: &[([f32; 3], PixelSample)],
     background: Option<[u8; 3]>,
@@ -75,9 +86,15 @@ pub fn solve(
     let bg = background.map(|b| b.map(srgb8_to_linear));
     let mut num = [0f64; 3];
     let mut den = 0f64;
+    let mut covered = 0usize;
+    let mut covered_sq = 0f64;
     for (c, s) in samples {
         let alpha = f64::from(1.0 - s.transmittance);
         let d = f64::from(s.direct);
+        if 1.0 - s.transmittance >= COVER_MIN {
+            covered += 1;
+            covered_sq += d * d;
+        }
         for q in 0..3 {
             let target = match bg {
                 Some(bg) => f64::from(c[q]) - (1.0 - alpha) * f64::from(bg[q]),
@@ -87,8 +104,11 @@ pub fn solve(
         }
         den += d * d;
     }
-    if den <= 1e-20 {
-        return Err(EditError::NoCover);
+    if covered == 0 {
+        return Err(EditError::MissesCloud);
+    }
+    if (covered_sq / covered as f64).sqrt() < LIT_MIN || den <= 1e-20 {
+        return Err(EditError::NotLit);
     }
     Ok(num.map(|n| (n / den).clamp(0.0, 100.0)))
 }

@@ -106,13 +106,15 @@ const CHUNK: usize = 2048;
 
 /// Builds the fine level of the LLW system with affinities `a` (see [`super::llw_weights`]) on
 /// the grid of `dims`: `cloud` marks the cloud voxels, `pin_at` each voxel's pin (an index into
-/// `colours`, or [`NONE`]).
+/// `colours`, or [`NONE`]); `screening` (λ ≥ 0) is added to every unknown's excess
+/// ([`super::SolveOptions::screening`]).
 pub(super) fn fine_level(
     dims: [usize; 3],
     a: &[[f32; 3]],
     cloud: &[bool],
     pin_at: &[u32],
     colours: &[[f32; 3]],
+    screening: f32,
 ) -> FineLevel {
     let [nx, ny, _] = dims;
     let n = a.len();
@@ -165,7 +167,7 @@ pub(super) fn fine_level(
                     }
                 });
                 lens.push(len);
-                excess.push(s);
+                excess.push(s + screening);
                 b.push(rhs);
             }
             (lens, col, c, excess, b)

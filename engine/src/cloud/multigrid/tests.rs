@@ -22,7 +22,7 @@ fn random_fine(dims: [usize; 3]) -> Graph {
     let pin_at: Vec<u32> = (0..n)
         .map(|i| if rnd(i, 2) < 0.05 { 0 } else { u32::MAX })
         .collect();
-    fine_level(dims, &a, &vec![true; n], &pin_at, &[[1.0, 0.5, 0.0]]).op
+    fine_level(dims, &a, &vec![true; n], &pin_at, &[[1.0, 0.5, 0.0]], 0.0).op
 }
 
 /// `A e` of any level through its adjacency (f64).
