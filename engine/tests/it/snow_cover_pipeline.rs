@@ -8,14 +8,21 @@ use serde_json::{json, Value};
 use crate::gltf_validator::validate_glb;
 use crate::golden::assert_golden;
 
+/// A job on `file`: a name in `../shared/data/mesh`, or a path under the repository root
+/// (`tests/data/…`).
 fn job(file: &str, params: Value) -> Job {
-    let path = format!(
-        "{}/../../shared/data/mesh/{file}",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let path = if file.starts_with("tests/") {
+        format!("{}/../{file}", env!("CARGO_MANIFEST_DIR"))
+    } else {
+        format!(
+            "{}/../../shared/data/mesh/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        )
+    };
     let l = Limits::default();
     let p = Params::parse(PipelineKind::SnowCover, &params, &l).unwrap();
-    pipeline::decode(p, &std::fs::read(path).unwrap(), Some(file), &l).unwrap()
+    let name = file.rsplit('/').next().unwrap_or(file);
+    pipeline::decode(p, &std::fs::read(path).unwrap(), Some(name), &l).unwrap()
 }
 
 fn output<'a>(outs: &'a [Output], name: &str) -> &'a [u8] {
@@ -402,9 +409,17 @@ fn luminance(p: &[u8]) -> f32 {
 /// 8), the changed pixels brighter on average.
 #[test]
 fn default_runs_converge_and_the_snow_shows() {
-    for file in ["inventor_table.glb", "teapot_npm.obj", "fzk_haus.glb"] {
+    for file in [
+        "inventor_table.glb",
+        "teapot_npm.obj",
+        "fzk_haus.glb",
+        "tests/data/mesh/sh3d_bench/bench.obj",
+        "tests/data/mesh/pyvista_ant.ply",
+    ] {
         let outs =
             pipeline::run(&job(file, json!({"width": 360, "height": 240})), &NoControl).unwrap();
+        // snow.glb sized to the scene (issue 18: ≤ 4 MB for inputs under 50 k triangles).
+        assert!(output(&outs, "snow.glb").len() <= 4_000_000, "{file}: snow.glb");
         let report: Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
         let st = &report["stabilization"];
         eprintln!("{file}: {st}");
