@@ -67,6 +67,8 @@ struct Rtin {
     error: Vec<f32>,
     /// Skirt triangles (fixed by the outline).
     skirts: usize,
+    /// Nodes sharing a cell with another node of the region (drawn at full resolution).
+    extra: Vec<u32>,
 }
 
 impl Rtin {
@@ -88,30 +90,38 @@ impl Rtin {
         let mut vroot = vec![u32::MAX; g * g];
         let mut count = vec![0u8; g * g];
         let mut skirts = 0;
+        let mut extra = Vec::new();
         for &a in list {
             let c = r.nodes[a as usize].0;
             let (x, y) = (c % nx - i0, c / nx - j0);
-            cell_node[y * side + x] = a;
-            for (q, &(dx, dy)) in CORNERS.iter().enumerate() {
-                let v = (y + dy) * g + x + dx;
-                let root = r.root[a as usize * 4 + q];
-                vroot[v] = match vroot[v] {
-                    u32::MAX => root,
-                    old if old == root => old,
-                    _ => u32::MAX - 1,
-                };
-                count[v] += 1;
+            if cell_node[y * side + x] != u32::MAX {
+                // A second node of the region at this cell (stacked layers linked into one
+                // region): drawn at full resolution, its corners kept fine.
+                extra.push(a);
+                for &(dx, dy) in &CORNERS {
+                    vroot[(y + dy) * g + x + dx] = u32::MAX - 1;
+                }
+            } else {
+                cell_node[y * side + x] = a;
+                for (q, &(dx, dy)) in CORNERS.iter().enumerate() {
+                    let v = (y + dy) * g + x + dx;
+                    let root = r.root[a as usize * 4 + q];
+                    vroot[v] = match vroot[v] {
+                        u32::MAX => root,
+                        old if old == root => old,
+                        _ => u32::MAX - 1,
+                    };
+                    count[v] += 1;
+                }
             }
             skirts += 2 * (0..4).filter(|&d| !r.edge_shared(maps, a, d)).count();
         }
         let mut top = vec![0f32; g * g];
         let mut bot = vec![0f32; g * g];
         let mut error = vec![f32::INFINITY; g * g];
-        for v in 0..g * g {
-            if count[v] == 4 && vroot[v] < u32::MAX - 1 {
-                let (t, b) = r.height[vroot[v] as usize];
-                top[v] = t;
-                bot[v] = b;
+        for (v, (&n, &root)) in count.iter().zip(&vroot).enumerate() {
+            if n == 4 && root < u32::MAX - 1 {
+                (top[v], bot[v]) = r.height[root as usize];
                 error[v] = 0.0;
             }
         }
@@ -143,6 +153,7 @@ impl Rtin {
             j0,
             g,
             cell_node,
+            extra,
             error,
             skirts,
         }
@@ -186,7 +197,7 @@ impl Rtin {
     fn count(&self, tau: f32) -> usize {
         let mut n = 0;
         self.walk(tau, &mut |_| n += 1);
-        2 * n + self.skirts
+        2 * n + self.skirts + 4 * self.extra.len()
     }
 }
 
@@ -257,7 +268,16 @@ pub fn simplified_snow_meshes(
         .par_iter()
         .zip(r.members.par_iter())
         .enumerate()
-        .map(|(ri, (t, list))| build(maps, &r, t, list, tau, ri))
+        .map(|(ri, (t, list))| {
+            let m = build(maps, &r, t, list, tau, ri);
+            if closed(&m) {
+                m
+            } else {
+                // Safety net: a region the simplification could not close (none known) is
+                // built at full resolution.
+                build(maps, &r, t, list, -1.0, ri)
+            }
+        })
         .collect();
     rep.triangles = meshes.iter().map(|m| m.triangles.len()).sum();
     (meshes, rep)
@@ -330,6 +350,19 @@ fn build(maps: &SnowMaps, r: &Regions, t: &Rtin, list: &[u32], tau: f32, ri: usi
         m.triangles.push([v[0].0, v[p].0, v[q].0]);
         m.triangles.push([v[0].1, v[q].1, v[p].1]);
     }
+    // Stacked nodes at full resolution, as in `snow_meshes`.
+    for &a in &t.extra {
+        let c = r.nodes[a as usize].0;
+        let (gx, gy) = (c % maps.nx - t.i0, c / maps.nx - t.j0);
+        let v: [(u32, u32); 4] = std::array::from_fn(|q| {
+            let root = r.root[a as usize * 4 + q];
+            vertex(&mut m, root, gx + CORNERS[q].0, gy + CORNERS[q].1)
+        });
+        m.triangles.push([v[0].0, v[3].0, v[1].0]);
+        m.triangles.push([v[1].0, v[3].0, v[2].0]);
+        m.triangles.push([v[0].1, v[1].1, v[3].1]);
+        m.triangles.push([v[1].1, v[2].1, v[3].1]);
+    }
     // Skirts on boundary edges, as at full resolution.
     for &a in list {
         let c = r.nodes[a as usize].0;
@@ -348,4 +381,20 @@ fn build(maps: &SnowMaps, r: &Regions, t: &Rtin, list: &[u32], tau: f32, ri: usi
     }
     m.normals = smooth_normals(&m.positions, &m.triangles);
     m
+}
+
+/// Every directed edge of `m` has its reverse, exactly once (closed and consistently wound).
+fn closed(m: &SnowMesh) -> bool {
+    let mut edges: Vec<(u32, u32)> = m
+        .triangles
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .collect();
+    edges.sort_unstable();
+    let n = edges.len();
+    edges.dedup();
+    edges.len() == n
+        && edges
+            .iter()
+            .all(|&(a, b)| edges.binary_search(&(b, a)).is_ok())
 }

@@ -419,7 +419,10 @@ fn default_runs_converge_and_the_snow_shows() {
         let outs =
             pipeline::run(&job(file, json!({"width": 360, "height": 240})), &NoControl).unwrap();
         // snow.glb sized to the scene (issue 18: ≤ 4 MB for inputs under 50 k triangles).
-        assert!(output(&outs, "snow.glb").len() <= 4_000_000, "{file}: snow.glb");
+        assert!(
+            output(&outs, "snow.glb").len() <= 4_000_000,
+            "{file}: snow.glb"
+        );
         let report: Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
         let st = &report["stabilization"];
         eprintln!("{file}: {st}");

@@ -263,8 +263,7 @@ fn simplified_snow_meshes_are_closed_within_the_error_and_the_budget() {
         let area = cells * f64::from(maps.cell).powi(2);
         assert!(vs > 0.0 && (vs - vf).abs() <= 2.0 * f64::from(tau) * area + 1e-9);
         // Every full-resolution top vertex lies within tau of the simplified top.
-        for (k, pt) in f.positions.iter().enumerate().step_by(2) {
-            let _ = k;
+        for pt in f.positions.iter().step_by(2) {
             let h = top_height_at(m, pt[0], pt[2]);
             if let Some(h) = h {
                 // Where two regions' tops overlap in plan (a step), the lookup may find the other
