@@ -93,7 +93,10 @@ pub const DEFAULT_RELAXATION: f32 = 1.0;
 pub const DEFAULT_SWEEP_RELAXATION: f32 = 1.0;
 /// Over-relaxation of the height-ordered sweeps in the model's time loop
 /// ([`super::snowfall::simulate`]): 2, a cell gives its whole excess `e = d − T` toward a single
-/// lower neighbour instead of half of it. In height order that drains a slope in one sweep: with
+/// lower neighbour instead of half of it, when every excess of the cell is at most `T` (then the
+/// giver ends at most `T` below any receiver, so no slope turns around and snow never moves
+/// back: measured on the teapot, unconditional ω = 2 ping-ponged on steep piles and 22 of 48
+/// steps hit the cap); larger excesses are levelled with ω = 1. In height order that drains a slope in one sweep: with
 /// ω = 1 a uniform deposit on a ramp W cells long at the repose angle needs O(W²) sweeps to run
 /// off (each pair levelled halfway), with ω = 2 one. Where the receiver keeps the snow (the toe of
 /// a pile) the pair ends flatter than the repose angle, never steeper (measured on the real meshes
@@ -579,6 +582,14 @@ fn outflow(
     let mut o = [0u32; 4];
     let mut total = 0u64;
     if n > 0 {
+        // Over-relaxation only where it cannot turn a slope around: with every excess at most T
+        // the giver never ends more than T below a receiver (module doc, "Then Gauss–Seidel
+        // sweeps"); a larger excess (a steep pile) is levelled plainly.
+        let omega = if omega > 1.0 && e.iter().any(|&x| x > t_drop) {
+            1.0
+        } else {
+            omega
+        };
         let share = omega * sum / (n * (n + 1)) as f32;
         for d in 0..4 {
             if e[d] > 0.0 {
