@@ -67,6 +67,28 @@ pub enum MeshColors<'a> {
     /// triangle numbering): per part its base colour, times [`Mesh::colors`] per vertex, times
     /// its texture looked up through [`Mesh::uvs`] (module doc, *Materials*).
     Materials(&'a Mesh),
+    /// Snow of this albedo, drawn with the snow material ([`snow_irradiance`]): wrapped diffuse
+    /// sun and a cool, stronger sky term, so snow reads as snow on a white model too.
+    Snow([f32; 3]),
+}
+
+/// Wrap of the snow material's diffuse term (light reaches `SNOW_WRAP` past the terminator in
+/// `n·l` units: the softness of light scattered under the surface).
+pub const SNOW_WRAP: f32 = 0.35;
+/// Sky light on snow relative to [`MeshLighting::ambient`], per channel: snow in shadow is lit by
+/// the blue sky (cool) and its multiple scattering returns more of it than a matte surface
+/// (luminance 1.09).
+pub const SNOW_SKY: [f32; 3] = [1.0, 1.1, 1.35];
+
+/// The snow material's irradiance factors for `ndl = n·l` (unit normal `n` toward the eye,
+/// `l` toward the sun) and `n_y`: `(direct, sky)` where the lit colour is
+/// `albedo · (sun_color · direct · visibility + ambient · sky)`. `direct = max(0, (ndl + w) /
+/// (1 + w))` (wrapped diffuse, w = [`SNOW_WRAP`]), `sky = SNOW_SKY · (1 + n_y) / 2`.
+#[inline]
+pub fn snow_irradiance(ndl: f32, n_y: f32) -> (f32, [f32; 3]) {
+    let direct = ((ndl + SNOW_WRAP) / (1.0 + SNOW_WRAP)).max(0.0);
+    let up = 0.5 + 0.5 * n_y;
+    (direct, SNOW_SKY.map(|k| k * up))
 }
 
 /// One triangle mesh of the scene, world space (metres, Y up).
@@ -274,6 +296,8 @@ struct Scene {
     /// Per triangle: the three vertex albedos.
     albedo: Vec<[[f32; 3]; 3]>,
     tex: SceneTextures,
+    /// Per triangle: drawn with the snow material ([`MeshColors::Snow`]).
+    snow: Vec<bool>,
     lo: [f64; 3],
     hi: [f64; 3],
 }
@@ -287,6 +311,7 @@ fn merge(instances: &[MeshInstance]) -> Scene {
         normals: Vec::with_capacity(nt),
         albedo: Vec::with_capacity(nt),
         tex: SceneTextures::default(),
+        snow: Vec::with_capacity(nt),
         lo: [f64::INFINITY; 3],
         hi: [f64::NEG_INFINITY; 3],
     };
@@ -337,7 +362,7 @@ fn merge(instances: &[MeshInstance]) -> Scene {
                 _ => [face; 3],
             };
             let albedo = match inst.colors {
-                MeshColors::Uniform(c) => [c; 3],
+                MeshColors::Uniform(c) | MeshColors::Snow(c) => [c; 3],
                 MeshColors::PerVertex(cs) if cs.len() == n => t.map(|i| cs[i as usize]),
                 MeshColors::PerVertex(_) => [[0.5; 3]; 3],
                 MeshColors::PerPart(parts) => {
@@ -413,6 +438,7 @@ fn merge(instances: &[MeshInstance]) -> Scene {
             s.triangles.push(t.map(|i| base + i));
             s.normals.push(normals);
             s.albedo.push(albedo);
+            s.snow.push(matches!(inst.colors, MeshColors::Snow(_)));
         }
     }
     s
@@ -750,6 +776,32 @@ impl<'a> MeshRenderer<'a> {
         [0, 1, 2].map(|k| light.sun_color[k] * direct + amb)
     }
 
+    /// [`MeshRenderer::irradiance`] for the snow material ([`snow_irradiance`]; `n` flipped
+    /// toward the eye). The shadow lookup takes the bias of a grazing sun where the wrap lights a
+    /// face turned away from it.
+    #[inline]
+    fn snow_irradiance_at(&self, p: [f64; 3], n: [f32; 3]) -> [f32; 3] {
+        let to_eye = sub(self.eye, p);
+        let mut n = n;
+        if f64::from(n[0]) * to_eye[0] + f64::from(n[1]) * to_eye[1] + f64::from(n[2]) * to_eye[2]
+            < 0.0
+        {
+            n = n.map(|v| -v);
+        }
+        let sun = self.sun;
+        let ndl = n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2];
+        let (mut direct, sky) = snow_irradiance(ndl, n[1]);
+        if !self.sun_ok {
+            direct = 0.0;
+        } else if direct > 0.0 {
+            if let Some(m) = &self.shadow {
+                direct *= m.visibility(p, f64::from(ndl.max(0.05)));
+            }
+        }
+        let light = self.light;
+        [0, 1, 2].map(|k| light.sun_color[k] * direct + light.ambient * sky[k])
+    }
+
     /// The share of a colour at `p` that survives the fog (1 without fog); the rest is
     /// [`MeshRenderer::fog_color`].
     #[inline]
@@ -774,7 +826,12 @@ impl<'a> MeshRenderer<'a> {
     #[inline]
     pub fn shade_point(&self, p: [f64; 3], n: [f32; 3], albedo: [f32; 3]) -> [f32; 3] {
         let e = self.irradiance(p, n);
-        let mut c = [0, 1, 2].map(|k| albedo[k] * e[k]);
+        self.apply_fog(p, [0, 1, 2].map(|k| albedo[k] * e[k]))
+    }
+
+    /// `c` (linear RGB at `p`) seen through the fog.
+    #[inline]
+    fn apply_fog(&self, p: [f64; 3], mut c: [f32; 3]) -> [f32; 3] {
         if self.light.fog_density > 0.0 {
             let fog = self.fog_factor(p);
             for (v, fc) in c.iter_mut().zip(self.light.fog_color) {
@@ -841,8 +898,14 @@ impl<'a> MeshRenderer<'a> {
                 let c = map.sample(f.interpolate(scene.tex.uv[t]), level);
                 albedo = [0, 1, 2].map(|k| albedo[k] * c[k]);
             }
+            let c = if scene.snow[t] {
+                let e = self.snow_irradiance_at(p, n);
+                self.apply_fog(p, [0, 1, 2].map(|k| albedo[k] * e[k]))
+            } else {
+                self.shade_point(p, n, albedo)
+            };
             Sample {
-                c: self.shade_point(p, n, albedo),
+                c,
                 a: 1.0,
                 t: f.z as f32,
             }

@@ -101,6 +101,7 @@ impl Coarse {
         }
         self.settler.tolerance = fine_settler.tolerance;
         self.settler.relaxation = fine_settler.relaxation;
+        self.settler.sweep_relaxation = fine_settler.sweep_relaxation;
         self.settler.jacobi_iterations = fine_settler.jacobi_iterations;
         // Deeper levels go on down to 64–127 cells: once a map is large enough to coarsen, the
         // coarser levels pay off (measured: 1 m pile at 1024², 140 instead of 198 iterations).

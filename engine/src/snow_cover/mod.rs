@@ -18,6 +18,7 @@ pub mod scenes;
 pub mod settle;
 pub mod shadow;
 pub mod shape;
+pub mod simplify;
 pub mod snowfall;
 pub mod sparse;
 

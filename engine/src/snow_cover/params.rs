@@ -49,6 +49,7 @@ pub struct WireParams {
     pub max_stabilize_iterations: Option<usize>,
     pub sparse_depth: Option<f32>,
     pub max_edge_length: Option<f32>,
+    pub snow_max_triangles: Option<usize>,
     pub frames: Option<usize>,
     pub sun_azimuth_deg: Option<f64>,
     pub sun_elevation_deg: Option<f64>,
@@ -89,15 +90,20 @@ pub struct Params {
     pub reproject_every: usize,
     /// Angle of repose, degrees, 10–89 (paper 45–60). Default 50.
     pub repose_angle_deg: f32,
-    /// Stabilization iterations per step at most, 1–100000. Default 20: the paper settles once
-    /// per animation frame; 20 Jacobi sweeps per step keep a default run at 512² to seconds
-    /// (500 per step took 150 s on the Inventor table), and the report counts the steps that
-    /// stopped before convergence.
+    /// Stabilization iterations per step at most, 1–100000. Default 200: a cap, not the usual
+    /// cost: with the height-ordered sweeps ([`super::settle`]) a step of a default run converges
+    /// in a few to a few dozen iterations on real meshes, and the report counts the steps that
+    /// stopped before convergence (none on the meshes in BENCHMARKS.md).
     pub max_stabilize_iterations: usize,
     /// Snow thinner than this (metres) is drawn as sparse flakes, 0–1. Default 0.01.
     pub sparse_depth: f32,
     /// Subdivide the displaced mesh's edges longer than this (metres); null = no subdivision.
     pub max_edge_length: Option<f32>,
+    /// Triangle budget of the snow meshes of `snow.glb` / `scene.glb` together, 1,000–10,000,000.
+    /// Default 100,000 (≈ 2.4 MB). The flat parts of the snow are simplified within a tenth of a
+    /// map cell, and the error is doubled until the meshes fit; the outline stays at full
+    /// resolution, so it alone may exceed a small budget (`report.json` `snow_meshes.within_budget`).
+    pub snow_max_triangles: usize,
     /// Frames of `timelapse.png` (1 = no time-lapse), 1–120. Default 1.
     pub frames: usize,
 }
@@ -116,6 +122,9 @@ pub enum SnowfallParam {
     Rate(f64),
     Schedule(Vec<[f64; 2]>),
 }
+
+/// Default `max_stabilize_iterations` of the pipeline (a cap; see [`Params`]).
+pub const DEFAULT_MAX_STABILIZE_ITERATIONS: usize = 200;
 
 /// When `snowfall` is not given, the default total (rate × `duration_h`) is at most this share
 /// of the scene's height.
@@ -216,12 +225,19 @@ impl Params {
             max_stabilize_iterations: range(
                 "max_stabilize_iterations",
                 w.max_stabilize_iterations,
-                20,
+                DEFAULT_MAX_STABILIZE_ITERATIONS,
                 1,
                 100_000,
             )?,
             sparse_depth: range("sparse_depth", w.sparse_depth, 0.01, 0.0, 1.0)?,
             max_edge_length,
+            snow_max_triangles: range(
+                "snow_max_triangles",
+                w.snow_max_triangles,
+                crate::snow_cover::simplify::DEFAULT_MAX_TRIANGLES,
+                1_000,
+                10_000_000,
+            )?,
             frames: range("frames", w.frames, 1, 1, 120)?,
         })
     }
@@ -271,7 +287,10 @@ mod tests {
             (m.resolution, m.directions, m.steps),
             (d.resolution, d.directions, d.steps)
         );
-        assert_eq!(m.max_stabilize_iterations, 20, "the pipeline's own default");
+        assert_eq!(
+            m.max_stabilize_iterations, DEFAULT_MAX_STABILIZE_ITERATIONS,
+            "the pipeline's own default"
+        );
         assert_eq!(
             (m.spread_deg, m.repose_angle_deg),
             (d.spread_deg, d.repose_angle_deg)

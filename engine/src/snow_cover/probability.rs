@@ -266,6 +266,72 @@ pub fn snow_probability(
     Ok(())
 }
 
+/// Snow probability at arbitrary surface points (workshop §2.1(4) / §2.3(5): the sparse flakes
+/// of walls and undersides, which the snow maps do not hold): the weighted share of `dirs` along
+/// which the point `points[v]`, moved off its surface by one texel along `normals[v]` (unit, or
+/// zero), is not in shadow. Shadow maps as [`snow_probability`]'s, `texel` metres a texel (the
+/// maps' cell). So a wall under an eave (in the eave's shadow for every near-vertical direction)
+/// gets less than an open wall, which the directions leaning toward it reach. Rayon over chunks
+/// of directions, integer weights: bit-identical for any thread count. Allocates one shadow map
+/// and one counter per point per chunk.
+pub fn point_probability(
+    mesh: &Mesh,
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    weights: Option<&[f32]>,
+    texel: f32,
+    ctl: &dyn Control,
+) -> Result<Vec<f32>, Canceled> {
+    let Some(bounds) = mesh.bounds() else {
+        return Ok(vec![0.0; points.len()]);
+    };
+    let wq: Vec<u32> = (0..dirs.len())
+        .map(|i| {
+            let w = weights.and_then(|w| w.get(i)).copied().unwrap_or(1.0);
+            (f64::from(w.max(0.0)) * WEIGHT_ONE).round() as u32
+        })
+        .collect();
+    let total: u64 = wq.iter().map(|&w| u64::from(w)).sum();
+    if dirs.is_empty() || total == 0 {
+        return Ok(vec![1.0; points.len()]);
+    }
+    let (lo, hi) = bounds;
+    let extent = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+    let threads = rayon::current_num_threads().max(1);
+    let chunk = dirs.len().div_ceil(threads);
+    let partial: Vec<Result<Vec<u64>, Canceled>> = dirs
+        .par_chunks(chunk)
+        .zip(wq.par_chunks(chunk))
+        .map(|(ds, ws)| {
+            let mut sm = ShadowMap::default();
+            let mut lit = vec![0u64; points.len()];
+            for (d, &w) in ds.iter().zip(ws) {
+                ctl.checkpoint()?;
+                if w == 0 {
+                    continue;
+                }
+                sm.render(mesh, *d, bounds, texel);
+                for ((l, p), n) in lit.iter_mut().zip(points).zip(normals) {
+                    let q = [0, 1, 2].map(|k| p[k] + n[k] * sm.texel);
+                    if !sm.occluded(q, sm.bias(*n, extent)) {
+                        *l += u64::from(w);
+                    }
+                }
+            }
+            Ok(lit)
+        })
+        .collect();
+    let mut sum = vec![0u64; points.len()];
+    for p in partial {
+        for (s, l) in sum.iter_mut().zip(p?) {
+            *s += l;
+        }
+    }
+    let inv = 1.0 / total as f64;
+    Ok(sum.iter().map(|&v| (v as f64 * inv) as f32).collect())
+}
+
 /// The receiver points of every layer, gathered once per [`snow_probability`] call: cell-centre
 /// x per column and z per row, and per layer the receiver height (base, or base + snow) and the
 /// normal as separate arrays, plus per row the span of cells that have the layer (empty rows and

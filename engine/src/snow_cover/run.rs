@@ -21,10 +21,14 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::params::Params;
-use super::probability::main_direction;
-use super::shape::{displace, snow_meshes, SnowMesh, DEFAULT_MIN_DEPTH_M};
+use super::probability::{angle_weights, main_direction, point_probability, snowfall_directions};
+use super::shape::{displace, SnowMesh, DEFAULT_MIN_DEPTH_M};
+use super::simplify::{simplified_snow_meshes, DEFAULT_MAX_ERROR_CELLS};
 use super::snowfall::{simulate, Snowfall, DEFAULT_RATE_M_PER_H};
-use super::sparse::{flake_overlay, flake_texture, vertex_coverage, FLAKE_TEXTURE_SIZE};
+use super::sparse::{
+    flake_overlay, flake_particles, flake_texture, vertex_coverage_with_probability, Flakes,
+    FLAKE_TEXTURE_SIZE,
+};
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
@@ -32,6 +36,12 @@ use crate::pipeline::Limits;
 use crate::render::image::RgbaImage;
 use crate::render::mesh::{render_meshes, MeshColors, MeshInstance};
 use crate::{Canceled, Control, InputError, NoControl, Output};
+
+/// Snowfall directions (the first of the model's) behind the flakes' point probability.
+pub const FLAKE_DIRECTIONS: usize = 8;
+
+/// Most flakes drawn in `render.png` ([`flake_particles`]; one triangle each).
+pub const MAX_RENDER_FLAKES: usize = 200_000;
 
 /// Snow's albedo, linear RGB.
 const SNOW: [f32; 3] = [0.9, 0.92, 0.95];
@@ -61,9 +71,11 @@ pub fn decode(
     p.view.decode(bytes, filename, limits)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn render_scene(
     mesh: &Mesh,
     snow: &[SnowMesh],
+    flakes: Option<&Flakes>,
     p: &Params,
     width: u32,
     height: u32,
@@ -80,8 +92,16 @@ fn render_scene(
         positions: &s.positions,
         normals: Some(&s.normals),
         triangles: &s.triangles,
-        colors: MeshColors::Uniform(SNOW),
+        colors: MeshColors::Snow(SNOW),
     }));
+    if let Some(f) = flakes.filter(|f| !f.triangles.is_empty()) {
+        instances.push(MeshInstance {
+            positions: &f.positions,
+            normals: Some(&f.normals),
+            triangles: &f.triangles,
+            colors: MeshColors::Snow(SNOW),
+        });
+    }
     render_meshes(
         &instances,
         &p.view.camera_for(mesh, width, height),
@@ -137,9 +157,14 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let (maps, report) = simulate(mesh, &model, &model_ctl, |maps, step| {
         if wanted(step) {
             let t0 = Instant::now();
-            let snow = snow_meshes(maps, DEFAULT_MIN_DEPTH_M);
+            let (snow, _) = simplified_snow_meshes(
+                maps,
+                DEFAULT_MIN_DEPTH_M,
+                DEFAULT_MAX_ERROR_CELLS,
+                p.snow_max_triangles,
+            );
             // Frames are previews: rendered without cancellation checks (they are small).
-            if let Ok(img) = render_scene(mesh, &snow, p, fw, fh, &NoControl, (0.0, 0.0)) {
+            if let Ok(img) = render_scene(mesh, &snow, None, p, fw, fh, &NoControl, (0.0, 0.0)) {
                 frames.push(img);
             }
             frame_ms += t0.elapsed().as_secs_f64() * 1e3;
@@ -156,14 +181,50 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
 
     ctl.progress("shape", 0.8);
     let t0 = Instant::now();
-    let snow = snow_meshes(&maps, DEFAULT_MIN_DEPTH_M);
+    let (snow, simplified) = simplified_snow_meshes(
+        &maps,
+        DEFAULT_MIN_DEPTH_M,
+        DEFAULT_MAX_ERROR_CELLS,
+        p.snow_max_triangles,
+    );
     let displaced = displace(mesh, &maps, p.max_edge_length);
-    let coverage = vertex_coverage(
+    // The flakes' snow probability at the displaced vertices themselves (walls included), from
+    // the first FLAKE_DIRECTIONS of the model's snowfall directions (independent draws, so an
+    // unbiased subset).
+    let dirs = snowfall_directions(model.directions, model.spread_deg, model.wind, model.seed);
+    let dirs = &dirs[..dirs.len().min(FLAKE_DIRECTIONS)];
+    let weights = model
+        .angle_weighting
+        .then(|| angle_weights(dirs, model.spread_deg, model.wind));
+    let point_p = point_probability(
+        mesh,
         &displaced.positions,
+        &displaced.normals,
+        dirs,
+        weights.as_deref(),
+        maps.cell,
+        ctl,
+    )?;
+    // No snowfall, no flakes (the angle term alone would put them on every wall).
+    let coverage = if model.snowfall.cumulative(model.duration_h) > 0.0 {
+        vertex_coverage_with_probability(
+            &displaced.positions,
+            &displaced.triangles,
+            &displaced.depth,
+            Some(&point_p),
+            main_direction(model.wind),
+            p.sparse_depth,
+        )
+    } else {
+        vec![0.0; displaced.positions.len()]
+    };
+    let flakes = flake_particles(
+        &displaced.positions,
+        &displaced.normals,
         &displaced.triangles,
-        &displaced.depth,
-        main_direction(model.wind),
-        p.sparse_depth,
+        &coverage,
+        p.seed,
+        MAX_RENDER_FLAKES,
     );
     timings.push(("shape".into(), t0.elapsed().as_secs_f64() * 1e3));
     ctl.checkpoint()?;
@@ -172,6 +233,7 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let image = render_scene(
         mesh,
         &snow,
+        Some(&flakes),
         p,
         p.view.width,
         p.view.height,
@@ -229,10 +291,11 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
         custom: &[],
         overlay: None,
     };
-    let custom: [(&str, &[f32]); 3] = [
+    let custom: [(&str, &[f32]); 4] = [
         ("_SNOW_COVERAGE", &coverage),
         ("_SNOW_DEPTH", &displaced.depth),
         ("_SNOW_PROBABILITY", &displaced.probability),
+        ("_SNOW_POINT_PROBABILITY", &point_p),
     ];
     let displaced_glb = mesh_glb(
         &[GlbNode {
@@ -292,8 +355,19 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
         "stabilization": {
             "iterations": report.stabilize_iterations,
             "unconverged_steps": report.unconverged_steps,
+            "steps": report.step_iterations.len(),
+            "max_step_iterations": report.step_iterations.iter().copied().max().unwrap_or(0),
+            "iterations_per_step": report.step_iterations,
+            "residual_tan": report.residual_tan,
+            "tolerance_tan": crate::snow_cover::settle::SLOPE_TOLERANCE,
         },
-        "snow_meshes": snow.iter().map(|s| json!({"name": s.name, "triangles": s.triangles.len()})).collect::<Vec<_>>(),
+        "snow_meshes": {
+            "meshes": snow.iter().map(|s| json!({"name": s.name, "triangles": s.triangles.len()})).collect::<Vec<_>>(),
+            "triangles": simplified.triangles,
+            "full_resolution_triangles": simplified.full_triangles,
+            "max_error_m": simplified.max_error_m,
+            "within_budget": simplified.within_budget,
+        },
         "displaced": {
             "vertices": displaced.positions.len(),
             "triangles": displaced.triangles.len(),

@@ -194,21 +194,64 @@ impl Dsu {
 }
 
 /// Corners of a cell: 0 = (i, j), 1 = (i+1, j), 2 = (i+1, j+1), 3 = (i, j+1) (corner offsets).
-const CORNERS: [(usize, usize); 4] = [(0, 0), (1, 0), (1, 1), (0, 1)];
+pub(super) const CORNERS: [(usize, usize); 4] = [(0, 0), (1, 0), (1, 1), (0, 1)];
 
 /// Per direction of [`NEIGHBOURS`]: the two corners of this cell on that edge, and the matching
 /// corners of the neighbour across it.
-const EDGE_CORNERS: [([usize; 2], [usize; 2]); 4] = [
+pub(super) const EDGE_CORNERS: [([usize; 2], [usize; 2]); 4] = [
     ([0, 3], [1, 2]), // −X
     ([1, 2], [0, 3]), // +X
     ([0, 1], [3, 2]), // −Z
     ([3, 2], [0, 1]), // +Z
 ];
 
-/// Build the closed snow meshes of `maps` (module doc): one per connected region of cells with
-/// more than `min_depth_m` metres of snow (default [`DEFAULT_MIN_DEPTH_M`]); none when no cell has.
-/// Allocates the meshes and `O(cells · layers)` scratch.
-pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
+/// The connected snow regions of `maps` (module doc): snowy `(cell, layer)` nodes, the root of
+/// each node corner (corners shared through mutual links have one root), the mean top and base
+/// heights per root, and the nodes of each region in order of its first node.
+pub(super) struct Regions {
+    /// Snowy nodes `(cell, layer)`, row-major then by layer.
+    pub nodes: Vec<(usize, usize)>,
+    /// `node_of[cell · layers + layer]`: the node, or `u32::MAX`.
+    pub node_of: Vec<u32>,
+    /// `root[node · 4 + corner]` (corners as in [`CORNERS`]).
+    pub root: Vec<u32>,
+    /// Per root: (top, base) height, metres (meaningful at roots only).
+    pub height: Vec<(f32, f32)>,
+    /// Nodes of each region.
+    pub members: Vec<Vec<u32>>,
+    /// Layers of the maps.
+    pub layers: usize,
+}
+
+impl Regions {
+    /// The node at cell `c`, layer `k`.
+    #[inline]
+    pub fn node_at(&self, c: usize, k: usize) -> Option<u32> {
+        (k < self.layers)
+            .then(|| self.node_of[c * self.layers + k])
+            .filter(|&v| v != u32::MAX)
+    }
+
+    /// Whether the edge `d` of node `a` (cell `c`) is shared with a snowy node across it (both of
+    /// its corners have the same roots there); otherwise it is a boundary edge with a skirt.
+    pub fn edge_shared(&self, maps: &SnowMaps, a: u32, d: usize) -> bool {
+        let c = self.nodes[a as usize].0;
+        let (i, j) = (c % maps.nx, c / maps.nx);
+        let (mine, theirs) = EDGE_CORNERS[d];
+        maps.neighbour(i, j, d).is_some_and(|c2| {
+            (0..self.layers).any(|k2| {
+                self.node_at(c2, k2).is_some_and(|b| {
+                    (0..2).all(|e| {
+                        self.root[a as usize * 4 + mine[e]] == self.root[b as usize * 4 + theirs[e]]
+                    })
+                })
+            })
+        })
+    }
+}
+
+/// The regions of `maps` with more than `min_depth_m` of snow; `None` when no cell has any.
+pub(super) fn regions(maps: &SnowMaps, min_depth_m: f32) -> Option<Regions> {
     let n = maps.len();
     let nl = maps.layers.len();
     // Nodes: snowy (cell, layer), numbered row-major then by layer.
@@ -223,7 +266,7 @@ pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
         }
     }
     if nodes.is_empty() {
-        return Vec::new();
+        return None;
     }
     let node_at = |c: usize, k: usize| -> Option<u32> {
         (k < nl)
@@ -251,18 +294,31 @@ pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
             }
         }
     }
+    let root: Vec<u32> = (0..nodes.len() as u32 * 4)
+        .map(|x| corners.find(x))
+        .collect();
 
     // Corner heights: mean surface and base over the cells sharing each corner.
     let mut sums = vec![[0.0f64; 3]; nodes.len() * 4]; // (top, base, count) at roots
     for (a, &(c, k)) in nodes.iter().enumerate() {
         let l = &maps.layers[k];
         for q in 0..4 {
-            let r = corners.find(a as u32 * 4 + q as u32) as usize;
+            let r = root[a * 4 + q] as usize;
             sums[r][0] += f64::from(l.surface(c));
             sums[r][1] += f64::from(l.base[c]);
             sums[r][2] += 1.0;
         }
     }
+    let height = sums
+        .iter()
+        .map(|s| {
+            if s[2] > 0.0 {
+                ((s[0] / s[2]) as f32, (s[1] / s[2]) as f32)
+            } else {
+                (0.0, 0.0)
+            }
+        })
+        .collect();
 
     // Group nodes by region, in order of the region's first node.
     let mut region_index: HashMap<u32, usize> = HashMap::new();
@@ -275,34 +331,66 @@ pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
         });
         members[idx].push(a);
     }
+    Some(Regions {
+        nodes,
+        node_of,
+        root,
+        height,
+        members,
+        layers: nl,
+    })
+}
 
-    let mut out = Vec::with_capacity(members.len());
-    for (ri, list) in members.iter().enumerate() {
+/// Push the two skirt triangles of the boundary edge from corner `p` to corner `q` (each `(top,
+/// bottom)` vertex), facing `out_dir` (the edge's outward direction).
+pub(super) fn push_skirt(m: &mut SnowMesh, p: (u32, u32), q: (u32, u32), out_dir: [f32; 3]) {
+    // (bottom p, top p, top q): flip if its normal does not point outward.
+    let n = cross(
+        sub(m.positions[p.0 as usize], m.positions[p.1 as usize]),
+        sub(m.positions[q.0 as usize], m.positions[p.1 as usize]),
+    );
+    if dot(n, out_dir) > 0.0 {
+        m.triangles.push([p.1, p.0, q.0]);
+        m.triangles.push([p.1, q.0, q.1]);
+    } else {
+        m.triangles.push([p.1, q.0, p.0]);
+        m.triangles.push([p.1, q.1, q.0]);
+    }
+}
+
+/// Build the closed snow meshes of `maps` (module doc) at full resolution (two top and two
+/// bottom triangles per cell): one per connected region of cells with more than `min_depth_m`
+/// metres of snow (default [`DEFAULT_MIN_DEPTH_M`]); none when no cell has. Allocates the meshes
+/// and `O(cells · layers)` scratch. [`super::simplify::simplified_snow_meshes`] builds the same
+/// regions within an error and a triangle budget.
+pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
+    let Some(r) = regions(maps, min_depth_m) else {
+        return Vec::new();
+    };
+    let mut out = Vec::with_capacity(r.members.len());
+    let mut verts = vec![u32::MAX; r.nodes.len() * 4];
+    for (ri, list) in r.members.iter().enumerate() {
         let mut m = SnowMesh {
             name: format!("snow{ri}"),
             ..SnowMesh::default()
         };
-        // Corner root → (top vertex, bottom vertex).
-        let mut verts: HashMap<u32, (u32, u32)> = HashMap::new();
-        let mut vertex = |m: &mut SnowMesh, corners: &mut Dsu, a: u32, q: usize| -> (u32, u32) {
-            let r = corners.find(a * 4 + q as u32);
-            *verts.entry(r).or_insert_with(|| {
-                let (c, _) = nodes[a as usize];
+        // Corner root → top vertex (its bottom vertex follows it).
+        let mut vertex = |m: &mut SnowMesh, a: u32, q: usize| -> (u32, u32) {
+            let root = r.root[a as usize * 4 + q] as usize;
+            if verts[root] == u32::MAX {
+                let (c, _) = r.nodes[a as usize];
                 let (i, j) = (c % maps.nx + CORNERS[q].0, c / maps.nx + CORNERS[q].1);
                 let x = maps.origin[0] + i as f32 * maps.cell;
                 let z = maps.origin[1] + j as f32 * maps.cell;
-                let s = sums[r as usize];
-                let top = (s[0] / s[2]) as f32;
-                let bottom = (s[1] / s[2]) as f32;
-                let t = m.positions.len() as u32;
+                let (top, bottom) = r.height[root];
+                verts[root] = m.positions.len() as u32;
                 m.positions.push([x, top, z]);
                 m.positions.push([x, bottom, z]);
-                (t, t + 1)
-            })
+            }
+            (verts[root], verts[root] + 1)
         };
         for &a in list {
-            let c = nodes[a as usize].0;
-            let v: [(u32, u32); 4] = std::array::from_fn(|q| vertex(&mut m, &mut corners, a, q));
+            let v: [(u32, u32); 4] = std::array::from_fn(|q| vertex(&mut m, a, q));
             // Top (normal +Y): corners 0 (i,j), 3 (i,j+1), 1 (i+1,j) — see the winding test.
             m.triangles.push([v[0].0, v[3].0, v[1].0]);
             m.triangles.push([v[1].0, v[3].0, v[2].0]);
@@ -310,36 +398,12 @@ pub fn snow_meshes(maps: &SnowMaps, min_depth_m: f32) -> Vec<SnowMesh> {
             m.triangles.push([v[0].1, v[1].1, v[3].1]);
             m.triangles.push([v[1].1, v[2].1, v[3].1]);
             // Skirts on boundary edges: no snowy cell across whose corners are these corners.
-            let (i, j) = (c % maps.nx, c / maps.nx);
-            for (d, &(mine, theirs)) in EDGE_CORNERS.iter().enumerate() {
-                let shared = maps.neighbour(i, j, d).is_some_and(|c2| {
-                    (0..nl).any(|k2| {
-                        node_at(c2, k2).is_some_and(|b| {
-                            (0..2).all(|e| {
-                                corners.find(a * 4 + mine[e] as u32)
-                                    == corners.find(b * 4 + theirs[e] as u32)
-                            })
-                        })
-                    })
-                });
-                if shared {
+            for (d, &(mine, _)) in EDGE_CORNERS.iter().enumerate() {
+                if r.edge_shared(maps, a, d) {
                     continue;
                 }
-                let (p, q) = (v[mine[0]], v[mine[1]]);
                 let (dx, dz) = NEIGHBOURS[d];
-                let out_dir = [dx as f32, 0.0, dz as f32];
-                // (bottom p, top p, top q): flip if its normal does not point outward.
-                let n = cross(
-                    sub(m.positions[p.0 as usize], m.positions[p.1 as usize]),
-                    sub(m.positions[q.0 as usize], m.positions[p.1 as usize]),
-                );
-                if dot(n, out_dir) > 0.0 {
-                    m.triangles.push([p.1, p.0, q.0]);
-                    m.triangles.push([p.1, q.0, q.1]);
-                } else {
-                    m.triangles.push([p.1, q.0, p.0]);
-                    m.triangles.push([p.1, q.1, q.0]);
-                }
+                push_skirt(&mut m, v[mine[0]], v[mine[1]], [dx as f32, 0.0, dz as f32]);
             }
         }
         m.normals = smooth_normals(&m.positions, &m.triangles);

@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use super::maps::{capacity_units, SnowMaps, SNOW_UNIT_M};
 use super::probability::{angle_weights, snow_probability, snowfall_directions, Receiver, Wind};
 use super::region::build_snow_maps;
-use super::settle::Settler;
+use super::settle::{repose_residual, Settler, MODEL_JACOBI_ITERATIONS, MODEL_SWEEP_RELAXATION};
 use crate::geom::mesh::Mesh;
 use crate::{Canceled, Control};
 
@@ -127,6 +127,11 @@ pub struct ModelReport {
     pub stabilize_iterations: usize,
     /// Steps whose stabilization stopped at `max_stabilize_iterations`.
     pub unconverged_steps: usize,
+    /// Stabilization iterations of each step (fine level; in step order).
+    pub step_iterations: Vec<u32>,
+    /// The final state's repose residual ([`super::settle::repose_residual`]): the steepest
+    /// slope from a cell with snow above `tan(repose)`, tan units (0: none).
+    pub residual_tan: f32,
     /// (stage, milliseconds): "regions", "probability", "snowfall" (accumulate + stabilize).
     pub timings: Vec<(&'static str, f64)>,
 }
@@ -196,6 +201,8 @@ pub fn simulate(
 
     let t0 = Instant::now();
     let mut settler = Settler::new(&maps);
+    settler.jacobi_iterations = MODEL_JACOBI_ITERATIONS;
+    settler.sweep_relaxation = MODEL_SWEEP_RELAXATION;
     let steps = p.steps.max(1);
     let mut fallen = 0u64;
     let mut lost = 0u64;
@@ -227,11 +234,13 @@ pub fn simulate(
         )?;
         lost += rep.lost_units;
         report.stabilize_iterations += rep.iterations;
+        report.step_iterations.push(rep.iterations as u32);
         if !rep.converged {
             report.unconverged_steps += 1;
         }
         on_frame(&maps, n);
     }
+    report.residual_tan = repose_residual(&maps, p.repose_angle_deg);
     report.timings.push(("snowfall", ms(t0)));
     ctl.progress("snowfall", 1.0);
 

@@ -27,6 +27,16 @@
 //! snow approaches `sparse_depth`, where the snow mesh takes over (in depth it is monotone up to
 //! `sparse_depth` and drops to 0 beyond it on faces below 90°: that is the hand-over).
 //!
+//! **Occlusion** (workshop §2.1(4): the flakes are snow that reaches the face, so they follow the
+//! snow probability too): the angle term is scaled by the point's snow probability `p`, the share
+//! of the snowfall directions' shadow maps in which it is lit
+//! ([`super::probability::point_probability`]), `coverage = f + (1 − f) · a · p`: a wall under an
+//! eave gets fewer flakes than an open wall. The thin-snow term `f` already holds P (the depth is
+//! `P · snowfall`).
+//!
+//! **Flakes in the render** ([`flake_particles`]): the coverage is turned into small flat flakes on
+//! the surface, seeded, so `render.png` shows them as the glTF overlay does.
+//!
 //! Rejected: a sum `(g + h) / 2` (it gives a table's underside flakes under vertical snowfall,
 //! where no snow reaches); the paper gives no formula, only the two monotone conditions above.
 //!
@@ -45,6 +55,18 @@ pub fn coverage_from_angles(
     depth: f32,
     sparse_depth: f32,
 ) -> f32 {
+    coverage_with_probability(ground_deg, incidence_deg, depth, sparse_depth, 1.0)
+}
+
+/// [`coverage_from_angles`] with the angle term `a` scaled by the snow probability `p` ∈ [0, 1]
+/// of the point (module doc, "Occlusion"): `f + (1 − f) · a · p`.
+pub fn coverage_with_probability(
+    ground_deg: f32,
+    incidence_deg: f32,
+    depth: f32,
+    sparse_depth: f32,
+    p: f32,
+) -> f32 {
     let gamma = ground_deg.clamp(0.0, 180.0);
     let steep = gamma >= 90.0;
     let thin = sparse_depth > 0.0 && depth < sparse_depth;
@@ -53,7 +75,7 @@ pub fn coverage_from_angles(
     }
     let g = gamma / 180.0;
     let h = 0.5 * (1.0 + incidence_deg.clamp(-90.0, 90.0).to_radians().sin());
-    let a = g * h;
+    let a = g * h * p.clamp(0.0, 1.0);
     let f = if sparse_depth <= 0.0 {
         0.0
     } else {
@@ -88,6 +110,19 @@ pub fn vertex_coverage(
     snowfall: [f32; 3],
     sparse_depth: f32,
 ) -> Vec<f32> {
+    vertex_coverage_with_probability(positions, triangles, depth, None, snowfall, sparse_depth)
+}
+
+/// [`vertex_coverage`] with a per-vertex snow probability (module doc, "Occlusion"): each face's
+/// angle term is scaled by the mean of its vertices' `probability` (`None`: 1).
+pub fn vertex_coverage_with_probability(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    depth: &[f32],
+    probability: Option<&[f32]>,
+    snowfall: [f32; 3],
+    sparse_depth: f32,
+) -> Vec<f32> {
     let mut acc = vec![(0.0f64, 0.0f64); positions.len()];
     for &t in triangles {
         let [a, b, c] = t.map(|i| positions[i as usize].map(f64::from));
@@ -108,7 +143,14 @@ pub fn vertex_coverage(
             .map(|&i| depth.get(i as usize).copied().unwrap_or(0.0))
             .sum::<f32>()
             / 3.0;
-        let cov = f64::from(face_coverage(unit, snowfall, d, sparse_depth));
+        let p = probability.map_or(1.0, |pr| {
+            t.iter()
+                .map(|&i| pr.get(i as usize).copied().unwrap_or(1.0))
+                .sum::<f32>()
+                / 3.0
+        });
+        let (g, inc) = face_angles(unit, snowfall);
+        let cov = f64::from(coverage_with_probability(g, inc, d, sparse_depth, p));
         let area = 0.5 * len;
         for &i in &t {
             let e = &mut acc[i as usize];
@@ -287,4 +329,128 @@ pub struct FlakeOverlay {
     pub colors: Vec<[f32; 4]>,
     /// `[3k, 3k + 1, 3k + 2]`.
     pub triangles: Vec<[u32; 3]>,
+}
+
+/// Flake geometry for the render (module doc, "Flakes in the render").
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Flakes {
+    /// Vertex positions, metres.
+    pub positions: Vec<[f32; 3]>,
+    /// Unit normals (the face's).
+    pub normals: Vec<[f32; 3]>,
+    /// Triangles (one per flake).
+    pub triangles: Vec<[u32; 3]>,
+    /// Circumradius of a flake, metres.
+    pub radius: f32,
+}
+
+/// Flake radius as a share of the mesh's bounding-box diagonal: about 1.5 px across in a
+/// default 900 × 600 render framing the whole model.
+pub const FLAKE_RADIUS_PER_DIAGONAL: f32 = 1.0 / 600.0;
+
+/// Share of a face with coverage 1 that its flakes cover.
+pub const FLAKE_FILL: f32 = 0.5;
+
+/// Sparse flakes as geometry: on every face of `positions`/`triangles` with mean vertex
+/// `coverage` c > 0, `c · FLAKE_FILL · area / flake area` flakes (the fraction drawn with a
+/// seeded coin) at uniform random points, each a triangle of circumradius
+/// [`FLAKE_RADIUS_PER_DIAGONAL`] of the diagonal at a random angle in the face's plane, lifted a
+/// third of its radius along the face normal (which side: `normals` at the first corner, the
+/// surface's outside). At most `max_flakes`: beyond, the flakes grow so that the covered area stays
+/// the same. Deterministic for `seed` (SplitMix64 per face). Allocates the output.
+pub fn flake_particles(
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    coverage: &[f32],
+    seed: u64,
+    max_flakes: usize,
+) -> Flakes {
+    let Some((lo, hi)) = bounds_of(positions) else {
+        return Flakes::default();
+    };
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+    let mut radius = (diag * FLAKE_RADIUS_PER_DIAGONAL).max(1e-9);
+    // A flake's area: an equilateral triangle of circumradius r.
+    let flake_area = |r: f32| 1.299_038_1 * r * r;
+    let face = |t: &[u32; 3]| -> Option<([f32; 3], f32, f32)> {
+        let [a, b, c] = t.map(|i| positions.get(i as usize).copied());
+        let (a, b, c) = (a?, b?, c?);
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let cov = t
+            .iter()
+            .map(|&i| coverage.get(i as usize).copied().unwrap_or(0.0))
+            .sum::<f32>()
+            / 3.0;
+        (len > 0.0 && len.is_finite() && cov > 0.0).then(|| (n.map(|x| x / len), 0.5 * len, cov))
+    };
+    let wanted: f64 = triangles
+        .iter()
+        .filter_map(face)
+        .map(|(_, area, cov)| f64::from(cov * FLAKE_FILL * area))
+        .sum::<f64>()
+        / f64::from(flake_area(radius));
+    if wanted > max_flakes as f64 {
+        radius *= (wanted / max_flakes.max(1) as f64).sqrt() as f32;
+    }
+    let mut out = Flakes {
+        radius,
+        ..Flakes::default()
+    };
+    for (ti, t) in triangles.iter().enumerate() {
+        let Some((mut n, area, cov)) = face(t) else {
+            continue;
+        };
+        // Outside: the side the vertex normals point to.
+        if let Some(vn) = normals.get(t[0] as usize) {
+            if n[0] * vn[0] + n[1] * vn[1] + n[2] * vn[2] < 0.0 {
+                n = n.map(|x| -x);
+            }
+        }
+        let mut st = seed ^ (ti as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xF1A4_E5;
+        let expect = cov * FLAKE_FILL * area / flake_area(radius);
+        let mut count = expect.floor() as usize;
+        if unit(&mut st) < expect - expect.floor() {
+            count += 1;
+        }
+        let count = count.min(max_flakes.saturating_sub(out.triangles.len()));
+        if count == 0 {
+            continue;
+        }
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        // In-plane axes.
+        let e1 = crate::geom::unit([b[0] - a[0], b[1] - a[1], b[2] - a[2]]);
+        let e2 = [
+            n[1] * e1[2] - n[2] * e1[1],
+            n[2] * e1[0] - n[0] * e1[2],
+            n[0] * e1[1] - n[1] * e1[0],
+        ];
+        for _ in 0..count {
+            let (mut r1, mut r2) = (unit(&mut st), unit(&mut st));
+            if r1 + r2 > 1.0 {
+                (r1, r2) = (1.0 - r1, 1.0 - r2);
+            }
+            let lift = radius / 3.0;
+            let centre =
+                [0, 1, 2].map(|k| a[k] + r1 * (b[k] - a[k]) + r2 * (c[k] - a[k]) + n[k] * lift);
+            let angle = unit(&mut st) * std::f32::consts::TAU;
+            let base = out.positions.len() as u32;
+            for q in 0..3 {
+                let th = angle + q as f32 * std::f32::consts::TAU / 3.0;
+                let (s, co) = th.sin_cos();
+                out.positions
+                    .push([0, 1, 2].map(|k| centre[k] + radius * (co * e1[k] + s * e2[k])));
+                out.normals.push(n);
+            }
+            out.triangles.push([base, base + 1, base + 2]);
+        }
+    }
+    out
 }

@@ -1191,3 +1191,31 @@ fn snow_under_a_low_slab_stays_below_its_underside_and_mass_balances() {
         }
     }
 }
+
+/// The repose residual (snow_cover::settle::repose_residual) on hand-made maps: 0 for level snow,
+/// the excess slope (tan units) of a one-cell pile, and 0 once stabilized down to the tolerance.
+#[test]
+fn repose_residual_measures_the_excess_slope() {
+    use phenomena_engine::snow_cover::settle::{repose_residual, SLOPE_TOLERANCE};
+    let mut b = phenomena_engine::snow_cover::scenes::SceneBuilder::default();
+    b.floor(10.0);
+    let mesh = b.build();
+    let mut maps = build_snow_maps(&mesh, 20, &NoControl).unwrap();
+    let cell = maps.cell;
+    for s in &mut maps.layers[0].snow {
+        *s = 100_000;
+    }
+    assert_eq!(repose_residual(&maps, 45.0), 0.0, "level snow");
+    // A pile of 2 cells' height (0.5 m more on a 0.5 m cell) in the middle: slope 2, excess 1.
+    let c = 10 * maps.nx + 10;
+    maps.layers[0].snow[c] += (2.0 * f64::from(cell) / 1e-6).round() as u32;
+    let r = repose_residual(&maps, 45.0);
+    assert!((r - 1.0).abs() < 1e-3, "residual {r}");
+    let rep = phenomena_engine::snow_cover::stabilize(&mut maps, 45.0, 10_000, &NoControl).unwrap();
+    assert!(rep.converged);
+    let r = repose_residual(&maps, 45.0);
+    assert!(
+        r <= SLOPE_TOLERANCE + 1e-6 / cell,
+        "after stabilization: {r}"
+    );
+}

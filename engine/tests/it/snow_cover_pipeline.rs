@@ -8,14 +8,21 @@ use serde_json::{json, Value};
 use crate::gltf_validator::validate_glb;
 use crate::golden::assert_golden;
 
+/// A job on `file`: a name in `../shared/data/mesh`, or a path under the repository root
+/// (`tests/data/…`).
 fn job(file: &str, params: Value) -> Job {
-    let path = format!(
-        "{}/../../shared/data/mesh/{file}",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let path = if file.starts_with("tests/") {
+        format!("{}/../{file}", env!("CARGO_MANIFEST_DIR"))
+    } else {
+        format!(
+            "{}/../../shared/data/mesh/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        )
+    };
     let l = Limits::default();
     let p = Params::parse(PipelineKind::SnowCover, &params, &l).unwrap();
-    pipeline::decode(p, &std::fs::read(path).unwrap(), Some(file), &l).unwrap()
+    let name = file.rsplit('/').next().unwrap_or(file);
+    pipeline::decode(p, &std::fs::read(path).unwrap(), Some(name), &l).unwrap()
 }
 
 fn output<'a>(outs: &'a [Output], name: &str) -> &'a [u8] {
@@ -190,7 +197,7 @@ fn floats(doc: &Value, bin: &[u8], a: &Value) -> Vec<Vec<f32>> {
 fn displaced_glb_carries_coverage_and_flake_texture() {
     use phenomena_engine::formats::png_write::encode_rgba;
     use phenomena_engine::snow_cover::sparse::{
-        flake_texture, vertex_coverage, FLAKE_TEXTURE_SIZE,
+        flake_texture, vertex_coverage_with_probability, FLAKE_TEXTURE_SIZE,
     };
     let sparse_depth = 0.01;
     let mut p = small();
@@ -220,13 +227,28 @@ fn displaced_glb_carries_coverage_and_flake_texture() {
         .iter()
         .map(|v| v[0])
         .collect();
+    let point_p: Vec<f32> = floats(&doc, bin, &base["_SNOW_POINT_PROBABILITY"])
+        .iter()
+        .map(|v| v[0])
+        .collect();
     assert_eq!(cov.len(), pos.len(), "one coverage per vertex");
     assert_eq!(depth.len(), pos.len(), "one depth per vertex");
+    assert_eq!(point_p.len(), pos.len(), "one point probability per vertex");
+    assert!(point_p.iter().all(|p| (0.0..=1.0).contains(p)));
     assert_eq!(
         cov,
-        vertex_coverage(&pos, &tris, &depth, [0.0, -1.0, 0.0], sparse_depth),
+        vertex_coverage_with_probability(
+            &pos,
+            &tris,
+            &depth,
+            Some(&point_p),
+            [0.0, -1.0, 0.0],
+            sparse_depth
+        ),
         "the attribute is the pipeline's coverage"
     );
+    // Occlusion counts: some vertices are in shadow from some directions (under the top).
+    assert!(point_p.iter().any(|&p| p < 0.5) && point_p.iter().any(|&p| p > 0.5));
     let partial = cov.iter().filter(|&&c| c > 0.0 && c < 1.0).count();
     assert!(partial > 0, "the table has partial coverage somewhere");
     assert!(cov.iter().all(|c| (0.0..=1.0).contains(c)));
@@ -364,4 +386,89 @@ fn the_chess_scene_floor_wound_downward_takes_the_snowfall() {
         fallen > 0.95 * total * floor && fallen <= 1.0001 * total * floor,
         "fallen {fallen} m³ for {total} m over {floor} m²"
     );
+}
+
+/// Relative luminance of an sRGB8 pixel (0–1, linear).
+fn luminance(p: &[u8]) -> f32 {
+    let lin = |v: u8| {
+        let c = f32::from(v) / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    0.2126 * lin(p[0]) + 0.7152 * lin(p[1]) + 0.0722 * lin(p[2])
+}
+
+/// Issue 18, "snow that reads as snow" and "converges by default", on real meshes with the
+/// default parameters (but a smaller picture): no unconverged step, the final repose residual
+/// within the stabilization's tolerance, and the render with snow differs from the one with
+/// `snowfall: 0` in at least 5 % of the model's pixels (a pixel is the model's where it differs
+/// from the sky at the left end of its row by more than 2; changed = any channel by more than
+/// 8), the changed pixels brighter on average.
+#[test]
+fn default_runs_converge_and_the_snow_shows() {
+    for file in [
+        "inventor_table.glb",
+        "teapot_npm.obj",
+        "fzk_haus.glb",
+        "tests/data/mesh/sh3d_bench/bench.obj",
+        "tests/data/mesh/pyvista_ant.ply",
+    ] {
+        let outs =
+            pipeline::run(&job(file, json!({"width": 360, "height": 240})), &NoControl).unwrap();
+        // snow.glb sized to the scene (issue 18: ≤ 4 MB for inputs under 50 k triangles).
+        assert!(
+            output(&outs, "snow.glb").len() <= 4_000_000,
+            "{file}: snow.glb"
+        );
+        let report: Value = serde_json::from_slice(output(&outs, "report.json")).unwrap();
+        let st = &report["stabilization"];
+        eprintln!("{file}: {st}");
+        assert_eq!(st["unconverged_steps"], json!(0), "{file}: {st}");
+        let residual = st["residual_tan"].as_f64().unwrap();
+        let tolerance = st["tolerance_tan"].as_f64().unwrap();
+        // One snow unit (1 µm) per cell of rounding on top of the tolerance.
+        let cell = report["maps"]["cell_m"].as_f64().unwrap();
+        assert!(
+            residual <= tolerance + 1e-6 / cell + 1e-6,
+            "{file}: residual {residual}"
+        );
+        let bare = pipeline::run(
+            &job(file, json!({"width": 360, "height": 240, "snowfall": 0})),
+            &NoControl,
+        )
+        .unwrap();
+        let (a, b) = (
+            decode_rgba(output(&outs, "render.png")),
+            decode_rgba(output(&bare, "render.png")),
+        );
+        let w = a.width as usize;
+        let (mut model, mut changed, mut brighter) = (0usize, 0usize, 0f64);
+        for y in 0..a.height as usize {
+            let sky = &b.data[y * w * 4..y * w * 4 + 4];
+            for x in 0..w {
+                let i = (y * w + x) * 4;
+                let (pa, pb) = (&a.data[i..i + 4], &b.data[i..i + 4]);
+                if (0..3).all(|k| pb[k].abs_diff(sky[k]) <= 2) {
+                    continue;
+                }
+                model += 1;
+                if (0..3).any(|k| pa[k].abs_diff(pb[k]) > 8) {
+                    changed += 1;
+                    brighter += f64::from(luminance(pa) - luminance(pb));
+                }
+            }
+        }
+        let share = changed as f64 / model.max(1) as f64;
+        eprintln!(
+            "{file}: {model} model pixels, {:.1} % changed, mean luminance change {:+.3}",
+            100.0 * share,
+            brighter / changed.max(1) as f64
+        );
+        assert!(model > 1000, "{file}: the model is in the picture");
+        assert!(share >= 0.05, "{file}: {:.1} % changed", 100.0 * share);
+        assert!(brighter > 0.0, "{file}: the snow is brighter");
+    }
 }
