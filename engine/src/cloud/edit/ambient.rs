@@ -95,8 +95,8 @@ pub fn pins(volume: &Volume, edit: &AmbientEdit) -> Vec<(usize, [f32; 3])> {
         let i = hits[k].0;
         let (mut sum, mut n) = ([0f32; 3], 0u32);
         while k < hits.len() && hits[k].0 == i {
-            for q in 0..3 {
-                sum[q] += hits[k].1[q];
+            for (a, c) in sum.iter_mut().zip(hits[k].1) {
+                *a += c;
             }
             n += 1;
             k += 1;
@@ -277,8 +277,8 @@ impl Coarse {
         for (b, d) in by_block {
             match sums.last_mut() {
                 Some((lb, s, n)) if *lb == b => {
-                    for q in 0..3 {
-                        s[q] += d[q];
+                    for (a, c) in s.iter_mut().zip(d) {
+                        *a += c;
                     }
                     *n += 1;
                 }
