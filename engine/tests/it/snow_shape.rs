@@ -283,7 +283,11 @@ fn simplified_snow_meshes_are_closed_within_the_error_and_the_budget() {
                 );
             }
         }
-        assert!(checked * 2 > f.positions.len() / 2, "{}: {checked} checked", m.name);
+        assert!(
+            checked * 2 > f.positions.len() / 2,
+            "{}: {checked} checked",
+            m.name
+        );
     }
     // A small budget: met, or the outline alone exceeds it.
     let (small, rep) = simplified_snow_meshes(&maps, DEFAULT_MIN_DEPTH_M, 0.1, 1_000);
