@@ -205,6 +205,7 @@ impl Embedded {
             outputs: Vec::new(),
             error: None,
             attempts: 0,
+            interrupted: 0,
             worker: None,
         };
         // Persist before acknowledging: an accepted job survives a crash right after the 202.
@@ -379,7 +380,7 @@ impl Embedded {
             if entry.record.status != Status::Queued {
                 continue;
             }
-            if entry.record.attempts >= self.inner.cfg.max_attempts {
+            if entry.record.failed_attempts() >= self.inner.cfg.max_attempts {
                 poison(&mut entry.record, self.inner.cfg.max_attempts);
                 let rec = entry.record.clone();
                 entry.live.tx.send_replace(rec.snapshot());

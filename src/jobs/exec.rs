@@ -98,7 +98,7 @@ pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
         format!(
             "the job was started {} times and its worker stopped before the end of each attempt \
              (a crash or an out-of-memory kill); it is not retried again (max_attempts = {max_attempts})",
-            rec.attempts
+            rec.failed_attempts()
         ),
     ));
 }
@@ -237,7 +237,7 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
             CancelReason::Shutdown => {
                 // A run cut short by a graceful shutdown is not held against the job: only
                 // attempts whose worker died count towards `max_attempts`.
-                rec.attempts = rec.attempts.saturating_sub(1);
+                rec.interrupted += 1;
                 rec.status = Status::Queued;
                 rec.progress = 0.0;
                 rec.stage = None;

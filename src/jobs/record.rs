@@ -104,6 +104,11 @@ pub struct JobRecord {
     /// another replica took over a dead worker's job).
     #[serde(default)]
     pub attempts: u32,
+    /// How many of those starts a graceful shutdown cut short (the job went back to the queue).
+    /// They are not held against the job: only [`JobRecord::failed_attempts`] count towards
+    /// `max_attempts`.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub interrupted: u32,
     /// The replica running (or that ran) the job's latest attempt.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub worker: Option<String>,
@@ -118,7 +123,16 @@ pub struct Snapshot {
     pub stage: Option<String>,
 }
 
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
 impl JobRecord {
+    /// Starts that ended neither in a result nor in a graceful re-queue: the worker died.
+    pub fn failed_attempts(&self) -> u32 {
+        self.attempts.saturating_sub(self.interrupted)
+    }
+
     pub fn snapshot(&self) -> Snapshot {
         Snapshot {
             status: self.status,

@@ -371,6 +371,7 @@ impl JobBackend for RedisJobs {
             outputs: Vec::new(),
             error: None,
             attempts: 0,
+            interrupted: 0,
             worker: None,
         };
         let raw = serde_json::to_string(&rec).map_err(json_err)?;

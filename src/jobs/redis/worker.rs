@@ -126,7 +126,7 @@ impl RedisJobs {
                 self.drop_entry(&c.entry).await?;
                 return Ok(None);
             }
-            if rec.attempts >= self.inner.cfg.max_attempts {
+            if rec.failed_attempts() >= self.inner.cfg.max_attempts {
                 let mut dead = rec.clone();
                 poison(&mut dead, self.inner.cfg.max_attempts);
                 let dead_raw = serde_json::to_string(&dead).map_err(json_err)?;
