@@ -715,7 +715,7 @@ fn flake_particles_follow_the_coverage() {
     assert!(none.triangles.is_empty());
     for cov in [0.25f32, 1.0] {
         let f = flake_particles(&positions, &normals, &tris, &[cov; 4], 1, 1_000_000);
-        let expect = cov * FLAKE_FILL / (1.299_038_1 * f.radius * f.radius);
+        let expect = cov * FLAKE_FILL / (1.299_038 * f.radius * f.radius);
         let n = f.triangles.len() as f32;
         assert!(
             (n - expect).abs() <= 2.0,
