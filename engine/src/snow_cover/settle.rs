@@ -477,12 +477,11 @@ pub fn repose_residual(maps: &SnowMaps, repose_deg: f32) -> f32 {
                         continue;
                     }
                     let kept = s.min(layer.capacity(c));
-                    for d in 0..4 {
+                    for (d, &(di, dj)) in NEIGHBOURS.iter().enumerate() {
                         let drop = match layer.links[c][d] {
                             LINK_WALL => continue,
                             LINK_LOST => kept as f32 * unit,
                             k2 => {
-                                let (di, dj) = NEIGHBOURS[d];
                                 let c2 =
                                     (j as isize + dj) as usize * nx + (i as isize + di) as usize;
                                 let l2 = &maps.layers[usize::from(k2)];

@@ -7,8 +7,10 @@
 //! the region's cell corners padded to `2ᵏ + 1` a side. Every triangle of the hierarchy is split in
 //! two at the midpoint of its hypotenuse; a vertex's error is the larger of the top and bottom
 //! surfaces' vertical distances from the hypotenuse's linear interpolation, raised to the largest
-//! error of the vertices below it in the hierarchy, so a triangle is kept whole only when every
-//! vertex it covers lies within the error of its plane. A triangle is split exactly when its
+//! error of the vertices below it in the hierarchy (Martini's metric), so a triangle is kept whole
+//! only when every hypotenuse midpoint below it lies within the threshold of its own edge. That
+//! bounds each level, not the distance to the kept triangle's plane, which can be somewhat larger
+//! (the tests check 2 × the threshold). A triangle is split exactly when its
 //! hypotenuse midpoint's error exceeds the threshold, and the neighbour across the hypotenuse
 //! tests the same vertex, so the triangulation is conforming (no cracks, no T-junctions).
 //!

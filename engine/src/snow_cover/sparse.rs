@@ -372,7 +372,7 @@ pub fn flake_particles(
     let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
     let mut radius = (diag * FLAKE_RADIUS_PER_DIAGONAL).max(1e-9);
     // A flake's area: an equilateral triangle of circumradius r.
-    let flake_area = |r: f32| 1.299_038_1 * r * r;
+    let flake_area = |r: f32| 1.299_038 * r * r;
     let face = |t: &[u32; 3]| -> Option<([f32; 3], f32, f32)> {
         let [a, b, c] = t.map(|i| positions.get(i as usize).copied());
         let (a, b, c) = (a?, b?, c?);
@@ -414,7 +414,7 @@ pub fn flake_particles(
                 n = n.map(|x| -x);
             }
         }
-        let mut st = seed ^ (ti as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xF1A4_E5;
+        let mut st = seed ^ (ti as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x00F1_A4E5;
         let expect = cov * FLAKE_FILL * area / flake_area(radius);
         let mut count = expect.floor() as usize;
         if unit(&mut st) < expect - expect.floor() {
