@@ -144,6 +144,9 @@ fn wrap(mode: WrappingMode) -> TextureWrap {
     }
 }
 
+/// Our decoded textures and the map from glTF texture index to ours.
+type DecodedTextures = (Vec<Arc<Texture>>, HashMap<usize, usize>);
+
 /// Decodes the base-colour textures the instanced primitives use; returns our textures and the
 /// map from glTF texture index to ours. Missing or undecodable images become notes.
 fn base_color_textures(
@@ -153,7 +156,7 @@ fn base_color_textures(
     sidecars: Sidecars<'_>,
     opts: &MeshOptions,
     builder: &mut Builder,
-) -> Result<(Vec<Arc<Texture>>, HashMap<usize, usize>), InputError> {
+) -> Result<DecodedTextures, InputError> {
     let mut used: Vec<usize> = Vec::new();
     for (node, _) in instances {
         for prim in node.mesh().into_iter().flat_map(|m| m.primitives()) {

@@ -85,13 +85,11 @@ pub fn decode_image(
     };
     let too_large = |w: u32, h: u32| {
         let px = u64::from(w) * u64::from(h);
-        (px > max_pixels).then(|| {
-            ImageError::TooLarge(InputError::TooLarge {
-                what: "texture pixels",
-                actual: px,
-                max: max_pixels,
-            })
-        })
+        (px > max_pixels).then_some(ImageError::TooLarge(InputError::TooLarge {
+            what: "texture pixels",
+            actual: px,
+            max: max_pixels,
+        }))
     };
     let corrupt = |e: String| ImageError::Corrupt(format!("texture '{name}': {e}"));
     let (w, h, rgba) = if mime == "image/png" {
