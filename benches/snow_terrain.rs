@@ -75,6 +75,15 @@ fn render(dem: &Dem, colour: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::r
 fn stages(c: &mut Criterion) {
     let src = tanzawa();
     let p = DescriptorParams::default();
+    let src_d = compute(&src, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
+    let (radius, passes) = (
+        src_d.resolved.smooth_radius,
+        src_d.resolved.smooth_iterations,
+    );
+    let az = src_d.resolved.sun_azimuth_deg;
+    let t_passes = src_d.resolved.descriptor_smooth_iterations;
+    let line = src_d.resolved.snowline_m.unwrap_or(0.0);
+    drop(src_d);
     let mut g = c.benchmark_group("snow_terrain");
     g.sample_size(10).warm_up_time(Duration::from_secs(1));
 
@@ -102,7 +111,7 @@ fn stages(c: &mut Criterion) {
     let d = compute(&dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
     g.measurement_time(Duration::from_secs(8));
     g.bench_function(format!("smooth_{n}"), |b| {
-        b.iter(|| smooth_diamond(&dem.heights, n, n, p.smooth_radius, p.smooth_iterations))
+        b.iter(|| smooth_diamond(&dem.heights, n, n, radius, passes))
     });
     let grid = TsaGrid {
         heights: &d.smoothed,
@@ -118,17 +127,18 @@ fn stages(c: &mut Criterion) {
         b.iter(|| {
             let mut t = d.tsa.clone();
             transfer_grid(&mut t, p.probe_radius, p.b);
-            apply_altitude(&mut t, &dem.heights, p.snowline, p.altitude_exponent);
+            apply_altitude(&mut t, &dem.heights, line, p.altitude_exponent);
             t
         })
     });
     g.bench_function(format!("smooth_t_{n}"), |b| {
-        b.iter(|| smooth_diamond(&d.t, n, n, p.smooth_radius, p.descriptor_smooth_iterations))
+        b.iter(|| smooth_diamond(&d.t, n, n, radius, t_passes))
     });
     let sun = Sun {
-        azimuth_deg: p.sun_azimuth_deg,
+        azimuth_deg: az,
         spread_deg: p.sun_spread_deg,
         min_slope_deg: p.sun_min_slope_deg,
+        strength: p.sun_strength,
     };
     g.bench_function(format!("sun_{n}"), |b| {
         b.iter(|| {

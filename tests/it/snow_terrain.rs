@@ -178,6 +178,7 @@ async fn report_describes_input_params_and_stages() {
             "altitude",
             "smooth_t",
             "sun",
+            "slope",
             "colour",
             "render_setup",
             "render",

@@ -26,23 +26,33 @@ pub struct Sweep {
 #[derive(Debug, Default, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WireParams {
+    pub preset: Option<String>,
     pub width: Option<u32>,
     pub height: Option<u32>,
     pub camera: Option<WireCamera>,
     pub seed: Option<u64>,
     pub smooth_radius: Option<usize>,
     pub smooth_iterations: Option<usize>,
+    pub smooth_length: Option<f32>,
     pub tsa_window: Option<usize>,
     pub tsa_max: Option<f32>,
     pub probe_radius: Option<f32>,
     pub b: Option<f32>,
+    pub swept_snow: Option<f32>,
     pub vertical_exaggeration: Option<f32>,
     pub snowline: Option<f32>,
+    pub snowline_quantile: Option<f32>,
+    pub snow_band: Option<f32>,
+    pub full_snow_quantile: Option<f32>,
+    pub sea_level: Option<f32>,
     pub altitude_exponent: Option<f32>,
     pub descriptor_smooth_iterations: Option<usize>,
     pub sun_azimuth_deg: Option<f32>,
     pub sun_spread_deg: Option<f32>,
     pub sun_min_slope_deg: Option<f32>,
+    pub sun_strength: Option<f32>,
+    pub slope_start_deg: Option<f32>,
+    pub slope_end_deg: Option<f32>,
     pub sun_elevation_deg: Option<f64>,
     pub rock_color: Option<String>,
     pub snow_color: Option<String>,
@@ -66,9 +76,19 @@ pub const OUTPUT_NAMES: &[&str] = &[
     "terrain.glb",
 ];
 
+/// The named parameter sets (`preset`).
+pub const PRESETS: &[&str] = &["winter", "paper"];
+
 /// Validated parameters of one `snow-terrain` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Params {
+    /// Named starting values of the descriptor, one of [`PRESETS`]; parameters given explicitly
+    /// override the preset's. `"winter"`: [`DescriptorParams::default`], snow on the upper part
+    /// of any DEM (issue 17). `"paper"`: [`DescriptorParams::paper`], the paper's literal
+    /// settings (snowline 0 m, quadratic to the summit, open ground bare, full sun correction,
+    /// no slope term, cell-based smoothing) — byte-identical to the outputs before the winter
+    /// default. Default: `"winter"`.
+    pub preset: String,
     /// Output image width, pixels, 16–8192. Default 900 (the paper's figures).
     pub width: u32,
     /// Output image height, pixels, 16–8192. Default 600.
@@ -120,6 +140,15 @@ pub struct Params {
 pub const SWEEPABLE: &[&str] = &[
     "probe_radius",
     "b",
+    "swept_snow",
+    "snowline_quantile",
+    "snow_band",
+    "full_snow_quantile",
+    "sea_level",
+    "smooth_length",
+    "sun_strength",
+    "slope_start_deg",
+    "slope_end_deg",
     "smooth_radius",
     "smooth_iterations",
     "tsa_window",
@@ -206,7 +235,6 @@ impl Params {
     }
 
     fn from_wire(w: &WireParams, limits: &Limits) -> Result<Self, ParamError> {
-        let d = DescriptorParams::default();
         let (width, height) = image_size(w.width, w.height, (900, 600), limits)?;
         let camera = camera_spec(
             w.camera.clone().unwrap_or_default(),
@@ -216,19 +244,51 @@ impl Params {
                 fov_deg: 40.0,
             },
         )?;
+        let preset = w.preset.clone().unwrap_or_else(|| "winter".into());
+        let d = match preset.as_str() {
+            "winter" => DescriptorParams::default(),
+            "paper" => DescriptorParams::paper(),
+            other => {
+                return Err(ParamError::new(
+                    "preset",
+                    format!("no preset {other:?}; one of: {}", PRESETS.join(", ")),
+                ))
+            }
+        };
+        // An Option field of the preset: the given value (validated) or the preset's.
+        fn opt<T: PartialOrd + std::fmt::Display + Copy>(
+            name: &str,
+            given: Option<T>,
+            preset: Option<T>,
+            lo: T,
+            hi: T,
+        ) -> Result<Option<T>, ParamError> {
+            match given {
+                Some(v) => range(name, Some(v), v, lo, hi).map(Some),
+                None => Ok(preset),
+            }
+        }
         let descriptor = DescriptorParams {
-            smooth_radius: range("smooth_radius", w.smooth_radius, d.smooth_radius, 1, 16)?,
-            smooth_iterations: range(
+            smooth_radius: opt("smooth_radius", w.smooth_radius, d.smooth_radius, 1, 16)?,
+            smooth_iterations: opt(
                 "smooth_iterations",
                 w.smooth_iterations,
                 d.smooth_iterations,
                 0,
                 50,
             )?,
+            smooth_length: range(
+                "smooth_length",
+                w.smooth_length,
+                d.smooth_length,
+                0.001,
+                100_000.0,
+            )?,
             tsa_window: range("tsa_window", w.tsa_window, d.tsa_window, 1, 16)?,
             tsa_max: range("tsa_max", w.tsa_max, d.tsa_max, 1.0, 1.0e7)?,
             probe_radius: range("probe_radius", w.probe_radius, d.probe_radius, 0.001, 1.0e7)?,
             b: range("b", w.b, d.b, 0.0, 1.0)?,
+            swept_snow: range("swept_snow", w.swept_snow, d.swept_snow, 0.0, 1.0)?,
             vertical_exaggeration: range(
                 "vertical_exaggeration",
                 w.vertical_exaggeration,
@@ -236,7 +296,23 @@ impl Params {
                 0.01,
                 100.0,
             )?,
-            snowline: range("snowline", w.snowline, d.snowline, -500.0, 9000.0)?,
+            snowline: opt("snowline", w.snowline, d.snowline, -11_000.0, 9000.0)?,
+            snowline_quantile: range(
+                "snowline_quantile",
+                w.snowline_quantile,
+                d.snowline_quantile,
+                0.0,
+                1.0,
+            )?,
+            snow_band: opt("snow_band", w.snow_band, d.snow_band, 0.001, 20_000.0)?,
+            full_snow_quantile: range(
+                "full_snow_quantile",
+                w.full_snow_quantile,
+                d.full_snow_quantile,
+                0.0,
+                1.0,
+            )?,
+            sea_level: opt("sea_level", w.sea_level, d.sea_level, -11_000.0, 9000.0)?,
             altitude_exponent: range(
                 "altitude_exponent",
                 w.altitude_exponent,
@@ -244,14 +320,14 @@ impl Params {
                 0.0,
                 10.0,
             )?,
-            descriptor_smooth_iterations: range(
+            descriptor_smooth_iterations: opt(
                 "descriptor_smooth_iterations",
                 w.descriptor_smooth_iterations,
                 d.descriptor_smooth_iterations,
                 0,
                 50,
             )?,
-            sun_azimuth_deg: range(
+            sun_azimuth_deg: opt(
                 "sun_azimuth_deg",
                 w.sun_azimuth_deg,
                 d.sun_azimuth_deg,
@@ -272,7 +348,45 @@ impl Params {
                 0.0,
                 89.0,
             )?,
+            sun_strength: range("sun_strength", w.sun_strength, d.sun_strength, 0.0, 1.0)?,
+            slope_start_deg: range(
+                "slope_start_deg",
+                w.slope_start_deg,
+                d.slope_start_deg,
+                0.0,
+                90.0,
+            )?,
+            slope_end_deg: range("slope_end_deg", w.slope_end_deg, d.slope_end_deg, 0.0, 90.0)?,
         };
+        if descriptor.slope_end_deg < descriptor.slope_start_deg {
+            // Name the one the caller gave (the end if both or neither).
+            let field = if w.slope_start_deg.is_some() && w.slope_end_deg.is_none() {
+                "slope_start_deg"
+            } else {
+                "slope_end_deg"
+            };
+            return Err(ParamError::new(
+                field,
+                format!(
+                    "slope_end_deg ({}) must not be below slope_start_deg ({})",
+                    descriptor.slope_end_deg, descriptor.slope_start_deg
+                ),
+            ));
+        }
+        if descriptor.full_snow_quantile < descriptor.snowline_quantile {
+            let field = if w.snowline_quantile.is_some() && w.full_snow_quantile.is_none() {
+                "snowline_quantile"
+            } else {
+                "full_snow_quantile"
+            };
+            return Err(ParamError::new(
+                field,
+                format!(
+                    "full_snow_quantile ({}) must not be below snowline_quantile ({})",
+                    descriptor.full_snow_quantile, descriptor.snowline_quantile
+                ),
+            ));
+        }
         let rock_color = w.rock_color.clone().unwrap_or_else(|| "#6e665c".into());
         let snow_color = w.snow_color.clone().unwrap_or_else(|| "#f4f7fb".into());
         parse_hex_color("rock_color", &rock_color)?;
@@ -286,6 +400,7 @@ impl Params {
             None => None,
         };
         Ok(Params {
+            preset,
             width,
             height,
             camera,

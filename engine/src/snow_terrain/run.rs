@@ -6,6 +6,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::altitude::snow_by_elevation_decile;
 use super::colour::albedo;
 use super::descriptor;
 use super::params::Params;
@@ -38,9 +39,12 @@ fn scene_of<'a>(dem: &Dem, heights: &'a [f32], colour: &'a [[f32; 3]]) -> Terrai
     }
 }
 
-fn lighting(p: &Params) -> Lighting {
+/// Lighting of the render; the sun's azimuth is the descriptor's (given, or from the DEM's
+/// hemisphere: [`descriptor::sun_azimuth_for`]).
+fn lighting(dem: &Dem, p: &Params) -> Lighting {
+    let (azimuth, _) = descriptor::sun_azimuth_for(dem, p.descriptor.sun_azimuth_deg);
     Lighting {
-        sun_dir: sun_direction(f64::from(p.descriptor.sun_azimuth_deg), p.sun_elevation_deg),
+        sun_dir: sun_direction(f64::from(azimuth), p.sun_elevation_deg),
         ambient: p.ambient,
         shading: p.shading,
         shadows: p.shadows,
@@ -103,7 +107,7 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
     let ms = |t0: Instant| t0.elapsed().as_secs_f64() * 1e3;
 
     let heights = world_heights(dem, p.descriptor.vertical_exaggeration);
-    let light = lighting(p);
+    let light = lighting(dem, p);
     // The render's set-up that needs only the heights and the camera (path choice, mesh,
     // rasteriser set-up, gradients, sun map: `prepare_view`) runs beside the descriptor and the
     // colours: the descriptor's passes over 80 k cells (the paper case) are short parallel
@@ -205,7 +209,12 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
                                         )
                                     })
                                 },
-                                || report_figures(dem, &snow),
+                                || {
+                                    (
+                                        report_figures(dem, &snow),
+                                        snow_by_elevation_decile(&dem.heights, &snow),
+                                    )
+                                },
                             )
                         },
                     )
@@ -234,7 +243,7 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
     timings.push(("encode".to_string(), overlap_ms + ms(t0)));
     ctl.checkpoint()?;
 
-    let (valid, covered, mean_snow, stats) = figures;
+    let ((valid, covered, mean_snow, stats), deciles) = figures;
     let mut stage_ms: Vec<serde_json::Value> = d
         .timings
         .iter()
@@ -255,8 +264,10 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
             "elevation_max": stats.map(|s| s.1),
             "elevation_mean": stats.map(|s| s.2),
         },
+        "resolved": d.resolved,
         "snow_covered_fraction": covered as f64 / valid.max(1) as f64,
         "mean_snow": mean_snow,
+        "snow_by_elevation_decile": deciles,
         "timings": stage_ms,
         "total_ms": t_all.elapsed().as_secs_f64() * 1e3,
     });
@@ -327,7 +338,7 @@ fn sweep_sheet(
         let camera = run
             .camera
             .camera(scene.bounds(), f64::from(tw) / f64::from(th));
-        let img = render_with(&accel, &camera, &lighting(run), tw, th, ctl, (f1, f2))?;
+        let img = render_with(&accel, &camera, &lighting(dem, run), tw, th, ctl, (f1, f2))?;
         tiles.push((img, format!("{name} = {value}")));
     }
     Ok(contact_sheet(&tiles, columns))

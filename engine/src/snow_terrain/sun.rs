@@ -42,6 +42,9 @@ pub struct Sun {
     pub spread_deg: f32,
     /// Triangles flatter than this (degrees) are skipped.
     pub min_slope_deg: f32,
+    /// k in [0, 1]: the applied factor is 1 − k·(1 − A) (issue 17's default 0.5; paper 1, where
+    /// the factor is A itself, bit for bit).
+    pub strength: f32,
 }
 
 /// Applies the sun correction to `t` in place. `heights` (metres, NaN = nodata) is the smoothed
@@ -93,6 +96,7 @@ struct Kernel {
     spread: f32,
     inv_spread: f32,
     min_tan2: f32,
+    strength: f32,
 }
 
 impl Kernel {
@@ -106,6 +110,7 @@ impl Kernel {
             spread,
             inv_spread: 1.0 / spread,
             min_tan2: min_tan * min_tan,
+            strength: sun.strength.clamp(0.0, 1.0),
         }
     }
 
@@ -239,9 +244,13 @@ fn band_sun(
         // The four quads around (r, c) and the point's corner in each, in a fixed order: the
         // north-west quad's SE corner, the north-east quad's SW, the south-west quad's NE, the
         // south-east quad's NW (the western quads are missing in column 0).
+        let strength = k.strength;
         let apply = |tv: &mut f32, sa: f32, sn: f32| {
             if sn > 0.0 && !tv.is_nan() {
-                let a = sa / sn;
+                let mut a = sa / sn;
+                if strength != 1.0 {
+                    a = 1.0 - strength * (1.0 - a);
+                }
                 *tv = *tv * a + (1.0 - a);
             }
         };
@@ -303,6 +312,7 @@ mod tests {
         azimuth_deg: 180.0,
         spread_deg: 60.0,
         min_slope_deg: 5.0,
+        strength: 1.0,
     };
 
     /// A plane descending toward compass azimuth `az` with slope `slope` (m/m).

@@ -110,14 +110,14 @@ fn smoother_keeps_a_constant_field_constant_around_holes_and_borders() {
 #[test]
 fn real_terrain_snow_in_hollows_rock_on_ridges() {
     for (name, p) in [
-        ("maunga_whau_volcano.asc", DescriptorParams::default()),
+        ("maunga_whau_volcano.asc", DescriptorParams::paper()),
         (
             "tanzawa_sagami_aster_gdem2_f32.tif",
-            DescriptorParams::default(),
+            DescriptorParams::paper(),
         ),
         (
             "colorado_front_range_srtmgl3_f32.tif",
-            DescriptorParams::default(),
+            DescriptorParams::paper(),
         ),
     ] {
         let dem = load(name);
@@ -125,7 +125,7 @@ fn real_terrain_snow_in_hollows_rock_on_ridges() {
         let flat = DescriptorParams {
             sun_spread_deg: 0.0,
             altitude_exponent: 1e-6,
-            snowline: -1e6,
+            snowline: Some(-1e6),
             ..p.clone()
         };
         let d = run(&dem, &flat);
@@ -150,13 +150,16 @@ fn real_terrain_snow_in_hollows_rock_on_ridges() {
         // The full descriptor stays in range too.
         let d = run(&dem, &p);
         check_range_and_holes(&dem, &d);
+        // And the winter default.
+        let d = run(&dem, &DescriptorParams::default());
+        check_range_and_holes(&dem, &d);
     }
 }
 
 #[test]
 fn more_snow_higher_up_on_real_terrain() {
     let dem = load("tanzawa_sagami_aster_gdem2_f32.tif");
-    let d = run(&dem, &DescriptorParams::default());
+    let d = run(&dem, &DescriptorParams::paper());
     let (min, max, _) = dem.stats().expect("valid cells");
     let band = |a: f32, b: f32| {
         mean_where(&d.t, |i| {
@@ -182,7 +185,7 @@ fn sunny_flank_is_barer_than_shady_flank() {
         let u = (z - 800.0) / 800.0;
         1500.0 + 900.0 * u * u
     });
-    let p = DescriptorParams::default();
+    let p = DescriptorParams::paper();
     let d = run(&dem, &p);
     let w = dem.width;
     let north_flank = mean_where(&d.t, |i| (8..32).contains(&(i / w)));
@@ -195,7 +198,7 @@ fn sunny_flank_is_barer_than_shady_flank() {
     let d = run(
         &dem,
         &DescriptorParams {
-            sun_azimuth_deg: 0.0,
+            sun_azimuth_deg: Some(0.0),
             ..p
         },
     );
@@ -208,6 +211,8 @@ fn sunny_flank_is_barer_than_shady_flank() {
 fn nodata_holes_stay_holes() {
     let dem = load("luxembourg_elev.tif");
     assert!(dem.heights.iter().any(|h| h.is_nan()));
+    let d = run(&dem, &DescriptorParams::paper());
+    check_range_and_holes(&dem, &d);
     let d = run(&dem, &DescriptorParams::default());
     check_range_and_holes(&dem, &d);
 }
@@ -271,12 +276,12 @@ fn progress_is_monotone_within_the_given_range_and_names_the_stages() {
     names.dedup();
     assert_eq!(
         names,
-        ["smooth", "tsa", "transfer", "altitude", "smooth_t", "sun"]
+        ["smooth", "tsa", "transfer", "altitude", "smooth_t", "sun", "slope"]
     );
     let stages: Vec<&str> = d.timings.iter().map(|t| t.0).collect();
     assert_eq!(
         stages,
-        ["smooth", "tsa", "transfer", "altitude", "smooth_t", "sun"]
+        ["smooth", "tsa", "transfer", "altitude", "smooth_t", "sun", "slope"]
     );
 }
 
@@ -313,14 +318,14 @@ fn descriptor_previews() {
         // TSA and transfer only (no altitude, no sun), for calibrating the probe.
         let base = DescriptorParams {
             probe_radius: env_f32("PROBE").unwrap_or(DescriptorParams::default().probe_radius),
-            smooth_radius: env_f32("SMOOTH_N").map_or(3, |v| v as usize),
+            smooth_radius: env_f32("SMOOTH_N").map(|v| v as usize),
             tsa_window: env_f32("TSA_WINDOW").map_or(1, |v| v as usize),
             ..DescriptorParams::default()
         };
         let probe_only = DescriptorParams {
             sun_spread_deg: 0.0,
             altitude_exponent: 1e-6,
-            snowline: -1e6,
+            snowline: Some(-1e6),
             ..base.clone()
         };
         let d = run(&dem, &probe_only);

@@ -21,4 +21,5 @@ mod snow_cover;
 mod snow_cover_pipeline;
 mod snow_shape;
 mod snow_terrain;
+mod snow_terrain_winter;
 mod volume_formats;
