@@ -17,6 +17,10 @@ pub struct RenderArgs {
     /// Input file (DEM, mesh or volume).
     #[arg(long)]
     pub input: PathBuf,
+    /// snow-terrain: an orthophoto (RGB/RGBA GeoTIFF, PNG or JPEG) whose colours replace
+    /// `rock_color`; the server's `ortho` part.
+    #[arg(long)]
+    pub ortho: Option<PathBuf>,
     /// Parameters as a JSON file.
     #[arg(long)]
     pub params: Option<PathBuf>,
@@ -52,6 +56,8 @@ pub enum CliError {
     },
     #[error("--set {0:?}: expected KEY=VALUE")]
     Set(String),
+    #[error("--ortho: {0}")]
+    Ortho(String),
     #[error("invalid parameter {0}")]
     Param(#[from] phenomena_engine::ParamError),
     #[error("input {0}")]
@@ -151,6 +157,22 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         .input
         .file_name()
         .map(|f| f.to_string_lossy().into_owned());
+    let mut aux = Vec::new();
+    if let Some(path) = &args.ortho {
+        if !set
+            .aux_parts(name)
+            .contains(&phenomena_engine::pipeline::ORTHO)
+        {
+            return Err(CliError::Ortho(format!(
+                "the {name} pipeline takes no orthophoto"
+            )));
+        }
+        let bytes = std::fs::read(path).map_err(|source| CliError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        aux.push((phenomena_engine::pipeline::ORTHO.to_string(), bytes));
+    }
 
     let bar = if args.quiet {
         ProgressBar::hidden()
@@ -168,16 +190,14 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         .build()?;
     // The mesh pipelines get the files the mesh refers to (an OBJ's material libraries and
     // textures, a .gltf's buffers and images) read from beside the input, as auxiliary inputs.
-    let sidecars = if matches!(name, "snow-cover" | "dust") {
+    if matches!(name, "snow-cover" | "dust") {
         let dir = args.input.parent().map(PathBuf::from).unwrap_or_default();
-        phenomena_engine::formats::mesh::gather_sidecars(&input, filename.as_deref(), &mut |rel| {
+        aux.extend(phenomena_engine::formats::mesh::gather_sidecars(&input, filename.as_deref(), &mut |rel| {
             std::fs::read(dir.join(rel)).ok()
-        })
-    } else {
-        Vec::new()
-    };
+        }));
+    }
     let result = pool
-        .install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &sidecars, &ctl));
+        .install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &aux, &ctl));
     bar.finish_and_clear();
     let outputs = match result {
         Ok(o) => o,

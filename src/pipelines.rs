@@ -77,6 +77,24 @@ pub trait PipelineSet: Send + Sync + 'static {
     ) -> Result<Vec<Output>, RunError> {
         self.run(pipeline, params, input, filename, ctl)
     }
+    /// Auxiliary file parts the pipeline accepts besides its input (snow-terrain's `ortho`):
+    /// multipart part names, and `{name}_asset` in a JSON submission.
+    fn aux_parts(&self, _pipeline: &str) -> &'static [&'static str] {
+        &[]
+    }
+    /// Decodes the input with its auxiliary inputs (name, bytes), as a run would, and says
+    /// which input an error is about (`None` = the main input, else the auxiliary part's name).
+    fn check_with_aux(
+        &self,
+        pipeline: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+        _aux: &[(String, Vec<u8>)],
+    ) -> Result<(), (Option<&'static str>, InputError)> {
+        self.check_input(pipeline, params, input, filename)
+            .map_err(|e| (None, e))
+    }
     /// Decodes the input like [`PipelineSet::check_input`] and describes it (a volume's
     /// dimensions and box) for resources that keep the input, such as cloud scenes.
     fn describe_input(
@@ -162,6 +180,26 @@ impl PipelineSet for EnginePipelines {
                 detail,
             },
         })
+    }
+
+    fn aux_parts(&self, name: &str) -> &'static [&'static str] {
+        match PipelineKind::parse(name) {
+            Some(PipelineKind::SnowTerrain) => &[pipeline::ORTHO],
+            _ => &[],
+        }
+    }
+
+    fn check_with_aux(
+        &self,
+        name: &str,
+        params: &serde_json::Value,
+        input: &[u8],
+        filename: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+    ) -> Result<(), (Option<&'static str>, InputError)> {
+        let k = kind(name).map_err(|e| (None, e.into()))?;
+        let p = pipeline::Params::parse(k, params, &self.limits).map_err(|e| (None, e.into()))?;
+        pipeline::decode_parts(p, input, filename, aux, &self.limits).map(|_| ())
     }
 
     fn describe_input(

@@ -14,6 +14,8 @@ const PIPELINES = {
     input: "DEM (GeoTIFF, .asc, .hgt, 16-bit PNG, .npy)",
     example: "dem.asc",
     images: [["render.png", "render"], ["descriptor.png", "snow-cover map (white = snow)"], ["sweep.png", "parameter sweep"]],
+    // An optional orthophoto whose colours replace rock_color (`ortho_asset`).
+    ortho: true,
   },
   "snow-cover": {
     schema: "SnowCoverParams",
@@ -174,7 +176,7 @@ function pipelineTab(panel, name, spec) {
   const cfg = PIPELINES[name];
   const schema = spec.components.schemas[cfg.schema];
   const cameraSchema = resolve(spec, spec.components.schemas.Camera).properties;
-  const state = { asset: null, timer: 0, follow: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null };
+  const state = { asset: null, timer: 0, follow: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null, ortho: null };
   const status = el("p", { class: "status", role: "status", "aria-live": "polite", id: `status-${name}` });
   const bar = el("progress", { max: 1, value: 0, "aria-label": `${name} progress` });
   // After a refused or invalid change the last results stay, marked out of date (dimmed, a
@@ -288,7 +290,7 @@ function pipelineTab(panel, name, spec) {
     const resp = await fetch(`/v1/${name}`, {
       method: "POST",
       headers: { "content-type": "application/json" },
-      body: JSON.stringify({ asset: state.asset.id, params: p }),
+      body: JSON.stringify({ asset: state.asset.id, ...(state.ortho ? { ortho_asset: state.ortho.id } : {}), params: p }),
     });
     if (!resp.ok) {
       const pr = await problemOf(resp);
@@ -410,10 +412,41 @@ function pipelineTab(panel, name, spec) {
     panel.dataset.asset = asset.id;
     schedule();
   }, error);
+  // The orthophoto (snow-terrain): uploaded once like the input, sent as `ortho_asset`.
+  let orthoBox = null;
+  if (cfg.ortho) {
+    const id = `ortho-${name}`;
+    const info = el("span", { class: "asset", "aria-live": "polite" }, " none (rock_color)");
+    const clear = el("button", {
+      type: "button", class: "secondary", hidden: true,
+      onclick: () => { state.ortho = null; file.value = ""; info.textContent = " none (rock_color)"; clear.hidden = true; schedule(); },
+    }, "Remove");
+    const file = el("input", {
+      type: "file", id, class: "file", accept: ".tif,.tiff,.png,.jpg,.jpeg,image/png,image/jpeg,image/tiff",
+      onchange: async (e) => {
+        const f = e.target.files[0];
+        if (!f) return;
+        info.textContent = ` uploading ${f.name}…`;
+        try {
+          state.ortho = await uploadAsset(f, f.name);
+          info.textContent = ` ${f.name} (${state.ortho.size} bytes)`;
+          panel.dataset.ortho = state.ortho.id;
+          clear.hidden = false;
+          schedule();
+        } catch (err) {
+          info.textContent = "";
+          error(err.message);
+        }
+      },
+    });
+    orthoBox = el("div", { class: "field" },
+      el("label", { for: id }, "Orthophoto for the rock colour (GeoTIFF, PNG, JPEG; optional):"), el("br"),
+      file, info, " ", clear);
+  }
   panel.append(
     el("h2", {}, document.getElementById(panel.getAttribute("aria-labelledby")).textContent),
     el("div", { class: "layout" },
-      el("div", { class: "area-in" }, input,
+      el("div", { class: "area-in" }, input, orthoBox,
         el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
         sweep ? sweep.box : null),
       el("div", { class: "area-out" }, bar, status, staleNote, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),

@@ -229,6 +229,8 @@ pub enum Job {
     SnowTerrain {
         params: Box<snow_terrain::Params>,
         dem: Dem,
+        /// The rock colours from an orthophoto ([`ORTHO`]), placed on the DEM's grid.
+        rock: Option<Box<snow_terrain::ortho::RockColours>>,
     },
     SnowCover {
         params: Box<snow_cover::Params>,
@@ -283,6 +285,10 @@ impl From<Canceled> for RunFailure {
         RunFailure::Canceled
     }
 }
+
+/// The name of snow-terrain's optional auxiliary input: an orthophoto (RGB or RGBA GeoTIFF, PNG
+/// or JPEG) whose colours replace `rock_color` (SPEC §1 step 7). Also its multipart part's name.
+pub const ORTHO: &str = "ortho";
 
 /// The name of the auxiliary input holding a cloud scene version's ambient field.
 pub const AMBIENT_FIELD: &str = "ambient.bin";
@@ -342,7 +348,7 @@ pub fn decode(
 }
 
 /// Like [`decode`], with the job's named auxiliary inputs (a cloud version's
-/// [`AMBIENT_FIELD`]).
+/// [`AMBIENT_FIELD`], snow-terrain's [`ORTHO`]).
 pub fn decode_with_aux(
     params: Params,
     bytes: &[u8],
@@ -350,6 +356,20 @@ pub fn decode_with_aux(
     aux: &[(String, Vec<u8>)],
     limits: &Limits,
 ) -> Result<Job, InputError> {
+    decode_parts(params, bytes, filename, aux, limits).map_err(|(_, e)| e)
+}
+
+/// [`decode_with_aux`] that also says which input an error is about: `None` for the main
+/// input, `Some(name)` for the auxiliary input `name` (an orthophoto that is corrupt, too large,
+/// in another CRS than the DEM or elsewhere on Earth).
+pub fn decode_parts(
+    params: Params,
+    bytes: &[u8],
+    filename: Option<&str>,
+    aux: &[(String, Vec<u8>)],
+    limits: &Limits,
+) -> Result<Job, (Option<&'static str>, InputError)> {
+    let main = |e: InputError| (None, e);
     match params {
         Params::SnowTerrain(p) => {
             let opts = DemOptions {
@@ -357,18 +377,34 @@ pub fn decode_with_aux(
                 cell_size: p.cell_size,
                 vertical_scale: p.vertical_scale,
             };
-            let dem = decode_dem(bytes, filename, &opts)?;
-            Ok(Job::SnowTerrain { params: p, dem })
+            let dem = decode_dem(bytes, filename, &opts).map_err(main)?;
+            let rock = match aux.iter().find(|(name, _)| name == ORTHO) {
+                Some((_, b)) => {
+                    let ortho = crate::formats::ortho::decode_ortho(b, limits.max_input_cells)
+                        .map_err(|e| (Some(ORTHO), e))?;
+                    let fallback = snow_terrain::run::rock_linear(&p);
+                    Some(Box::new(
+                        snow_terrain::ortho::rock_colours(&dem, &ortho, fallback)
+                            .map_err(|e| (Some(ORTHO), e))?,
+                    ))
+                }
+                None => None,
+            };
+            Ok(Job::SnowTerrain {
+                params: p,
+                dem,
+                rock,
+            })
         }
         Params::SnowCover(p) => {
             // snow_cover::run::decode, with the sidecar files the CLI passes as aux inputs.
-            let mesh = p.view.decode_with(bytes, filename, aux, limits)?;
+            let mesh = p.view.decode_with(bytes, filename, aux, limits).map_err(main)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
         Params::Cloud(p) => {
             let opts = volume_options(p.bounds().map(|(lo, hi)| [lo, hi]), p.dims(), limits);
-            let volume = cloud_volume(bytes, filename, &opts)?;
-            let ambient = ambient_field(aux, &volume)?;
+            let volume = cloud_volume(bytes, filename, &opts).map_err(main)?;
+            let ambient = ambient_field(aux, &volume).map_err(main)?;
             Ok(Job::Cloud {
                 params: p,
                 volume,
@@ -379,7 +415,8 @@ pub fn decode_with_aux(
             if let cloud::Edit::SunColor(e) = &p.edit {
                 if let Some((_, blob)) = aux.iter().find(|(name, _)| name == LAYERS) {
                     let (id, layers) =
-                        cloud::layers::Layers::from_bytes(blob, limits.max_output_pixels)?;
+                        cloud::layers::Layers::from_bytes(blob, limits.max_output_pixels)
+                            .map_err(main)?;
                     // Layers of another view or state are not these: march instead.
                     if id == cloud::layers::identity(&e.view, &p.base) {
                         return Ok(Job::CloudRecolor {
@@ -390,8 +427,9 @@ pub fn decode_with_aux(
                     }
                 }
             }
-            let volume = cloud_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))?;
-            let ambient = ambient_field(aux, &volume)?;
+            let volume = cloud_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))
+                .map_err(main)?;
+            let ambient = ambient_field(aux, &volume).map_err(main)?;
             Ok(Job::CloudEdit {
                 params: p,
                 volume,
@@ -399,7 +437,7 @@ pub fn decode_with_aux(
             })
         }
         Params::Dust(p) => {
-            let mesh = dust::run::decode_with(bytes, filename, aux, &p, limits)?;
+            let mesh = dust::run::decode_with(bytes, filename, aux, &p, limits).map_err(main)?;
             Ok(Job::Dust { params: p, mesh })
         }
     }
@@ -449,7 +487,12 @@ fn edit_failure(e: cloud::EditError) -> RunFailure {
 /// Runs the pipeline to its named outputs.
 pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
     match job {
-        Job::SnowTerrain { params, dem } => Ok(snow_terrain::run(dem, params, ctl)?),
+        Job::SnowTerrain { params, dem, rock } => Ok(snow_terrain::run_with_rock(
+            dem,
+            rock.as_deref(),
+            params,
+            ctl,
+        )?),
         Job::SnowCover { params, mesh } => Ok(snow_cover::run(mesh, params, ctl)?),
         Job::Dust { params, mesh } => Ok(dust::run(mesh, params, ctl)?),
         Job::Cloud {

@@ -10,7 +10,7 @@ mod submit;
 mod system;
 pub mod web;
 
-pub use submit::{parse_submission, Input};
+pub use submit::{parse_submission, parse_submission_aux, Input};
 
 use std::sync::Arc;
 use std::time::Instant;

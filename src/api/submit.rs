@@ -5,6 +5,11 @@
 //! - `multipart/form-data` with a `params` part (JSON; optional, `{}` when absent) and the input
 //!   part named for the pipeline (`dem`, `mesh`, `volume`), whose file name guides format detection;
 //! - `application/json`: `{"asset": "<sha256>", "params": {…}}` naming an uploaded asset.
+//!
+//! A pipeline may take auxiliary files besides its input (snow-terrain's orthophoto `ortho`):
+//! a multipart part of that name, or `"{name}_asset": "<sha256>"` in the JSON form. They are
+//! stored as assets too, checked with the input before the job is queued (a 4xx naming the
+//! part), and part of the request key.
 
 use axum::extract::{FromRequest, Multipart, Request, State};
 use axum::http::header;
@@ -24,6 +29,9 @@ struct JsonSubmit {
     asset: String,
     #[serde(default = "empty_object")]
     params: serde_json::Value,
+    /// snow-terrain's orthophoto, an uploaded asset.
+    #[serde(default)]
+    ortho_asset: Option<String>,
 }
 
 fn empty_object() -> serde_json::Value {
@@ -69,11 +77,16 @@ pub async fn submit(
         .input_part(pipeline)
         .ok_or_else(|| ApiError::NotFound(format!("no pipeline {pipeline}")))?;
     let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
-    let (raw_params, input) = read_body(&st, req, part).await?;
+    let aux_parts = st.jobs.pipelines().aux_parts(pipeline);
+    let (raw_params, input, aux_inputs) =
+        parse_submission_aux(req, part, aux_parts, st.cfg.max_body_bytes).await?;
 
     reject_nulls(&raw_params, "")?;
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
+    if !aux_inputs.is_empty() {
+        return submit_with_aux(&st, pipeline, part, input, aux_inputs, params, wait).await;
+    }
 
     // A JSON body names its asset: an identical request already queued, running or done is
     // answered before any file I/O or thread hop (the cached-submit hot path).
@@ -106,6 +119,68 @@ pub async fn submit(
         aux: Vec::new(),
     };
     submit_job(&st, pipeline, input, params, key, wait).await
+}
+
+/// [`submit`] with auxiliary inputs: each is stored as an asset, the request key covers them,
+/// and the input is decoded with them (a 4xx naming the part at fault) before the job is queued.
+async fn submit_with_aux(
+    st: &AppState,
+    pipeline: &'static str,
+    part: &'static str,
+    input: Input,
+    aux_inputs: Vec<(&'static str, Input)>,
+    params: serde_json::Value,
+    wait: Option<std::time::Duration>,
+) -> Result<Response, ApiError> {
+    let (asset, bytes) = store_input(st, input).await?;
+    let mut key_input = asset.id.clone();
+    let mut aux = Vec::with_capacity(aux_inputs.len());
+    let mut aux_bytes = Vec::with_capacity(aux_inputs.len());
+    for (name, inp) in aux_inputs {
+        let (rec, b) = store_input(st, inp)
+            .await
+            .map_err(|e| rename_asset_field(e, name))?;
+        key_input.push_str(&format!("+{name}:{}", rec.id));
+        let b = input_bytes(st, &rec, b).await?;
+        touch_asset(st, &rec).await?;
+        aux.push(crate::jobs::AuxInput {
+            name: name.to_string(),
+            blob: rec.id,
+        });
+        aux_bytes.push((name.to_string(), b.to_vec()));
+    }
+    let key = request_key(pipeline, &key_input, &params);
+    if let Some(rec) = st.jobs.find_by_key(&key).await? {
+        return respond(st, rec, wait).await;
+    }
+    let bytes = input_bytes(st, &asset, bytes).await?;
+    let p = params.clone();
+    let filename = asset.filename.clone();
+    let pipelines = st.jobs.pipelines().clone();
+    tokio::task::spawn_blocking(move || {
+        pipelines.check_with_aux(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes)
+    })
+    .await
+    .map_err(blocking_err)?
+    .map_err(|(which, e)| ApiError::from_input(e, which.unwrap_or(part)))?;
+    touch_asset(st, &asset).await?;
+    let input = InputRef {
+        asset: asset.id,
+        filename: asset.filename,
+        aux,
+    };
+    submit_job(st, pipeline, input, params, key, wait).await
+}
+
+/// An unknown asset named for an auxiliary part is that part's field (`ortho_asset`).
+fn rename_asset_field(e: ApiError, name: &str) -> ApiError {
+    match e {
+        ApiError::InvalidInput { detail, .. } => ApiError::InvalidInput {
+            detail: detail.replace("no asset", &format!("{name}_asset: no asset")),
+            field: Some(format!("{name}_asset")),
+        },
+        other => other,
+    }
 }
 
 /// Queues a job (or joins an identical one) and answers with it, waiting per `Prefer: wait`.
@@ -160,6 +235,20 @@ pub async fn parse_submission(
     part: &'static str,
     max_body: usize,
 ) -> Result<(serde_json::Value, Input), ApiError> {
+    parse_submission_aux(req, part, &[], max_body)
+        .await
+        .map(|(p, i, _)| (p, i))
+}
+
+/// [`parse_submission`] that also accepts the auxiliary file parts `aux` (multipart parts of
+/// those names, or `"{name}_asset"` in a JSON body) and returns them.
+#[allow(clippy::type_complexity)]
+pub async fn parse_submission_aux(
+    req: Request,
+    part: &'static str,
+    aux: &'static [&'static str],
+    max_body: usize,
+) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
     let ctype = req
         .headers()
         .get(header::CONTENT_TYPE)
@@ -167,9 +256,9 @@ pub async fn parse_submission(
         .unwrap_or("")
         .to_ascii_lowercase();
     if ctype.starts_with("multipart/form-data") {
-        read_multipart(req, part).await
+        read_multipart(req, part, aux).await
     } else if ctype.starts_with("application/json") {
-        read_json(req, max_body).await
+        read_json(req, aux, max_body).await
     } else {
         Err(ApiError::UnsupportedMediaType(format!(
             "send multipart/form-data (a `params` part and a `{part}` file part) or application/json \
@@ -265,15 +354,18 @@ fn multipart_err(e: axum::extract::multipart::MultipartError) -> ApiError {
     }
 }
 
+#[allow(clippy::type_complexity)]
 async fn read_multipart(
     req: Request,
     part: &'static str,
-) -> Result<(serde_json::Value, Input), ApiError> {
+    aux: &'static [&'static str],
+) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
     let mut mp = Multipart::from_request(req, &()).await.map_err(|e| {
         ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
     })?;
     let mut params = None;
     let mut input = None;
+    let mut aux_inputs: Vec<(&'static str, Input)> = Vec::new();
     while let Some(field) = mp.next_field().await.map_err(multipart_err)? {
         let name = field.name().unwrap_or("").to_string();
         if name == "params" {
@@ -302,19 +394,38 @@ async fn read_multipart(
                 ));
             }
             input = Some(Input::Upload { bytes, filename });
+        } else if let Some(&a) = aux.iter().find(|a| **a == name) {
+            let filename = field.file_name().map(sanitize_filename);
+            let bytes = field.bytes().await.map_err(multipart_err)?;
+            if bytes.is_empty() {
+                return Err(ApiError::bad_field(a, format!("the {a} part is empty")));
+            }
+            if aux_inputs.iter().any(|(n, _)| *n == a) {
+                return Err(ApiError::bad_field(
+                    a,
+                    format!("the {a} part is given twice"),
+                ));
+            }
+            aux_inputs.push((a, Input::Upload { bytes, filename }));
         } else {
+            let extra: String = aux.iter().map(|a| format!(", `{a}`")).collect();
             return Err(ApiError::bad_field(
                 name.clone(),
-                format!("unexpected part {name:?}; expected `params` and `{part}`"),
+                format!("unexpected part {name:?}; expected `params`, `{part}`{extra}"),
             ));
         }
     }
     let input = input
         .ok_or_else(|| ApiError::bad_field(part, format!("missing the `{part}` file part")))?;
-    Ok((params.unwrap_or_else(empty_object), input))
+    Ok((params.unwrap_or_else(empty_object), input, aux_inputs))
 }
 
-async fn read_json(req: Request, max_body: usize) -> Result<(serde_json::Value, Input), ApiError> {
+#[allow(clippy::type_complexity)]
+async fn read_json(
+    req: Request,
+    aux: &'static [&'static str],
+    max_body: usize,
+) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
     let body = axum::body::to_bytes(req.into_body(), max_body)
         .await
         .map_err(|_| ApiError::PayloadTooLarge("request body too large".into()))?;
@@ -332,7 +443,23 @@ async fn read_json(req: Request, max_body: usize) -> Result<(serde_json::Value, 
             field: Some("asset".into()),
         });
     }
-    Ok((j.params, Input::Named(j.asset)))
+    let mut aux_inputs = Vec::new();
+    if let Some(o) = j.ortho_asset {
+        let Some(&name) = aux.iter().find(|a| **a == "ortho") else {
+            return Err(ApiError::bad_field(
+                "ortho_asset",
+                "this pipeline takes no orthophoto",
+            ));
+        };
+        if !crate::store::is_sha256_hex(&o) {
+            return Err(ApiError::InvalidInput {
+                detail: format!("{o:?} is not an asset id (64 lowercase hex digits)"),
+                field: Some("ortho_asset".into()),
+            });
+        }
+        aux_inputs.push((name, Input::Named(o)));
+    }
+    Ok((j.params, Input::Named(j.asset), aux_inputs))
 }
 
 /// Keeps only the last path component of a client-supplied file name (no traversal, no control

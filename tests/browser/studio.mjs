@@ -101,7 +101,7 @@ try {
 
   // 2. Snow on terrain: upload a DEM, see a render; change a parameter, see it change.
   const st = page.locator("#panel-snow-terrain");
-  await st.locator("input[type=file]").setInputFiles({ name: "cone.asc", mimeType: "text/plain", buffer: dem() });
+  await st.locator(".dropzone input[type=file]").setInputFiles({ name: "cone.asc", mimeType: "text/plain", buffer: dem() });
   await page.waitForFunction(() => {
     const p = document.getElementById("panel-snow-terrain");
     return p.dataset.status && p.querySelector("img[data-output='render.png']");

@@ -167,6 +167,23 @@ impl PipelineSet for WithSleepy {
             self.0.describe_input(name, p, input, f)
         }
     }
+    fn aux_parts(&self, name: &str) -> &'static [&'static str] {
+        self.0.aux_parts(name)
+    }
+    fn check_with_aux(
+        &self,
+        name: &str,
+        p: &Value,
+        input: &[u8],
+        f: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+    ) -> Result<(), (Option<&'static str>, InputError)> {
+        if name == "sleepy" {
+            Sleepy.check_input(name, p, input, f).map_err(|e| (None, e))
+        } else {
+            self.0.check_with_aux(name, p, input, f, aux)
+        }
+    }
 }
 
 /// Which job system a test server runs on. The job suites run on both.

@@ -6,7 +6,7 @@ use std::process::Command;
 use phenomena_engine::formats::dem::{decode_dem, DemOptions};
 use serde_json::{json, Value};
 
-use crate::common::{data, Server};
+use crate::common::{data, problem, Server};
 
 const BIN: &str = env!("CARGO_BIN_EXE_phenomena");
 
@@ -187,4 +187,276 @@ async fn report_describes_input_params_and_stages() {
     );
     let f = report["snow_covered_fraction"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&f));
+}
+
+// ---- Orthophoto (SPEC §1 step 7; issue 17) ----
+
+fn ortho_file(name: &str) -> Vec<u8> {
+    std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/ortho")
+            .join(name),
+    )
+    .unwrap()
+}
+
+/// Multipart with an `ortho` part.
+async fn submit_with_ortho(
+    s: &Server,
+    dem: &str,
+    ortho: Vec<u8>,
+    ortho_name: &str,
+    params: &Value,
+) -> reqwest::Response {
+    let bytes = std::fs::read(data(dem)).unwrap();
+    let name = std::path::Path::new(dem)
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
+    let form = reqwest::multipart::Form::new()
+        .text("params", params.to_string())
+        .part(
+            "dem",
+            reqwest::multipart::Part::bytes(bytes).file_name(name),
+        )
+        .part(
+            "ortho",
+            reqwest::multipart::Part::bytes(ortho).file_name(ortho_name.to_string()),
+        );
+    s.client
+        .post(s.url("/v1/snow-terrain"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap()
+}
+
+async fn outputs_of(s: &Server, done: &Value) -> Vec<(String, Vec<u8>)> {
+    let mut outs = Vec::new();
+    for o in done["outputs"].as_array().unwrap() {
+        let b = s
+            .client
+            .get(s.url(o["url"].as_str().unwrap()))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap();
+        outs.push((o["name"].as_str().unwrap().to_string(), b.to_vec()));
+    }
+    outs
+}
+
+/// The Landsat ortho over the Olinda DEM (same ground, same package): served bytes equal the
+/// CLI's `--ortho` run, the report says how it was placed, and the JSON form naming two assets
+/// is the same request (same job).
+#[tokio::test]
+async fn ortho_over_http_equals_the_cli_and_the_asset_form() {
+    let s = Server::start(|_| {}).await;
+    let params = json!({"width": 240, "height": 160});
+    let ortho = ortho_file("olinda_l7_rgb_utm25s.tif");
+    let resp = submit_with_ortho(
+        &s,
+        "dem/olinda_dem_utm25s.tif",
+        ortho.clone(),
+        "o.tif",
+        &params,
+    )
+    .await;
+    assert_eq!(resp.status().as_u16(), 202);
+    let job: Value = resp.json().await.unwrap();
+    let done = s.wait_done(job["id"].as_str().unwrap()).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let outs = outputs_of(&s, &done).await;
+    let report: Value =
+        serde_json::from_slice(&outs.iter().find(|(n, _)| n == "report.json").unwrap().1).unwrap();
+    assert_eq!(report["ortho"]["placement"], "georeferenced");
+    assert!(
+        report["ortho"]["coverage"].as_f64().unwrap() > 0.98,
+        "{report}"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let pfile = dir.path().join("p.json");
+    std::fs::write(&pfile, params.to_string()).unwrap();
+    let ofile = dir.path().join("o.tif");
+    std::fs::write(&ofile, &ortho).unwrap();
+    let out = dir.path().join("out");
+    let status = Command::new(BIN)
+        .args(["render", "snow-terrain", "--quiet", "--input"])
+        .arg(data("dem/olinda_dem_utm25s.tif"))
+        .arg("--ortho")
+        .arg(&ofile)
+        .arg("--params")
+        .arg(&pfile)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for (name, served) in &outs {
+        if name != "report.json" {
+            let offline = std::fs::read(out.join(name)).unwrap();
+            assert!(served == &offline, "{name} differs between HTTP and CLI");
+        }
+    }
+
+    // The same DEM and ortho as uploaded assets, named in a JSON body: the same request.
+    let mut ids = Vec::new();
+    for (bytes, name) in [
+        (
+            std::fs::read(data("dem/olinda_dem_utm25s.tif")).unwrap(),
+            "olinda_dem_utm25s.tif",
+        ),
+        (ortho.clone(), "o.tif"),
+    ] {
+        let r = s
+            .client
+            .post(s.url(&format!("/v1/assets?filename={name}")))
+            .header("content-type", "application/octet-stream")
+            .body(bytes)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{}", r.status());
+        let a: Value = r.json().await.unwrap();
+        ids.push(a["id"].as_str().unwrap().to_string());
+    }
+    let r = s
+        .client
+        .post(s.url("/v1/snow-terrain"))
+        .json(&json!({"asset": ids[0], "ortho_asset": ids[1], "params": params}))
+        .send()
+        .await
+        .unwrap();
+    assert!(r.status().is_success(), "{}", r.status());
+    let again: Value = r.json().await.unwrap();
+    assert_eq!(
+        again["id"], job["id"],
+        "the ortho is part of the request key"
+    );
+    // Without the ortho it is another request.
+    let r = s
+        .client
+        .post(s.url("/v1/snow-terrain"))
+        .json(&json!({"asset": ids[0], "params": params}))
+        .send()
+        .await
+        .unwrap();
+    let plain: Value = r.json().await.unwrap();
+    assert_ne!(plain["id"], job["id"]);
+    // An unknown ortho asset names its field.
+    let r = s
+        .client
+        .post(s.url("/v1/snow-terrain"))
+        .json(&json!({"asset": ids[0], "ortho_asset": "0".repeat(64), "params": params}))
+        .send()
+        .await
+        .unwrap();
+    let body = problem(r, 422, "invalid-input").await;
+    assert_eq!(body["field"], "ortho_asset");
+}
+
+/// A plain PNG and a JPEG are stretched over the DEM; they run.
+#[tokio::test]
+async fn plain_png_and_jpeg_orthos_are_stretched() {
+    let s = Server::start(|_| {}).await;
+    for name in ["olinda_l7_rgb.png", "olinda_l7_rgb.jpg"] {
+        let resp = submit_with_ortho(
+            &s,
+            "dem/olinda_dem_utm25s.tif",
+            ortho_file(name),
+            name,
+            &json!({"width": 64, "height": 48, "outputs": ["render.png"]}),
+        )
+        .await;
+        assert_eq!(resp.status().as_u16(), 202, "{name}");
+        let job: Value = resp.json().await.unwrap();
+        let done = s.wait_done(job["id"].as_str().unwrap()).await;
+        assert_eq!(done["status"], "succeeded", "{done}");
+        let outs = outputs_of(&s, &done).await;
+        let report: Value =
+            serde_json::from_slice(&outs.iter().find(|(n, _)| n == "report.json").unwrap().1)
+                .unwrap();
+        assert_eq!(report["ortho"]["placement"], "stretched", "{name}");
+        assert_eq!(report["ortho"]["coverage"], json!(1.0), "{name}");
+    }
+}
+
+/// An ortho in another CRS than the DEM: 422 naming both CRSs, field `ortho`; a file that is no
+/// image: 415; an ortho over the pixel limit: 413 before decoding it.
+#[tokio::test]
+async fn bad_orthos_get_problem_responses() {
+    let s = Server::start(|_| {}).await;
+    let p = json!({"width": 64, "height": 48});
+    let resp = submit_with_ortho(
+        &s,
+        "dem/tanzawa_sagami_aster_gdem2.tif",
+        ortho_file("olinda_l7_rgb_utm25s.tif"),
+        "o.tif",
+        &p,
+    )
+    .await;
+    let body = problem(resp, 422, "invalid-input").await;
+    let detail = body["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("EPSG:31985") && detail.contains("EPSG:4326"),
+        "{detail}"
+    );
+    assert_eq!(body["field"], "ortho");
+
+    let resp = submit_with_ortho(
+        &s,
+        "dem/olinda_dem_utm25s.tif",
+        b"not an image at all".to_vec(),
+        "o.png",
+        &p,
+    )
+    .await;
+    let body = problem(resp, 415, "unsupported-format").await;
+    assert!(
+        body["detail"].as_str().unwrap().starts_with("ortho:"),
+        "{body}"
+    );
+
+    // The DEM (111 × 111 = 12,321 cells) fits a 20,000 limit, the ortho (349 × 352) does not.
+    let small = Server::start(|c| c.max_input_cells = 20_000).await;
+    let resp = submit_with_ortho(
+        &small,
+        "dem/olinda_dem_utm25s.tif",
+        ortho_file("olinda_l7_rgb_utm25s.tif"),
+        "o.tif",
+        &p,
+    )
+    .await;
+    let body = problem(resp, 413, "too-large").await;
+    assert!(
+        body["detail"]
+            .as_str()
+            .unwrap()
+            .contains("orthophoto pixels"),
+        "{body}"
+    );
+
+    // Other pipelines take no ortho part.
+    let form = reqwest::multipart::Form::new()
+        .part(
+            "mesh",
+            reqwest::multipart::Part::bytes(b"x".to_vec()).file_name("m.obj"),
+        )
+        .part(
+            "ortho",
+            reqwest::multipart::Part::bytes(b"x".to_vec()).file_name("o.png"),
+        );
+    let r = s
+        .client
+        .post(s.url("/v1/snow-cover"))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    let body = problem(r, 400, "bad-request").await;
+    assert_eq!(body["field"], "ortho");
 }

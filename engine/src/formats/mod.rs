@@ -7,5 +7,6 @@ pub mod glb;
 pub mod mesh;
 pub mod mesh_glb;
 pub(crate) mod npy_header;
+pub mod ortho;
 pub mod png_write;
 pub mod volume;

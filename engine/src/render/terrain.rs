@@ -105,7 +105,9 @@ use super::image::RgbaImage;
 use super::raster;
 use crate::control::{Canceled, Control};
 
+mod ao;
 mod raster_path;
+pub use ao::{sky_view_factor, AoMap};
 use raster_path::{render_raster, RasterSetup};
 
 /// A DEM prepared for rendering. Grid point (`col`, `row`) sits at world
@@ -175,6 +177,18 @@ pub struct Lighting {
     /// rasteriser) get one shadow ray per grid point, interpolated bilinearly (soft edges one
     /// cell wide); bigger DEMs one shadow ray per sample that hits (sharp). Default: true.
     pub shadows: bool,
+    /// Ambient occlusion of the sky light, 0..1: the sky light is multiplied by
+    /// `1 − w + w·SVF` with the horizon-based sky-view factor SVF of the height field
+    /// ([`sky_view_factor`], search radius a tenth of the DEM's larger horizontal extent), so
+    /// valley floors and hollows get less sky light than ridges. 0 = none (the paper's look).
+    /// Default: 0.
+    pub ambient_occlusion: f32,
+    /// How much the sky light and the haze take the sky's colour, 0..1. 0: a neutral sky light
+    /// (`ambient` × albedo) and the paper's haze (toward the grey mean, red and green lowered);
+    /// 1: the sky light has the sky's mean colour at the same luminance (shade on snow turns
+    /// cool blue, as on a clear day) and the haze fades toward `sky_horizon` (in-scattered sky
+    /// light; aerial perspective). Default: 0.
+    pub sky_tint: f32,
 }
 
 impl Default for Lighting {
@@ -189,7 +203,37 @@ impl Default for Lighting {
             sky_horizon: [0.62, 0.72, 0.84],
             samples: 4,
             shadows: true,
+            ambient_occlusion: 0.0,
+            sky_tint: 0.0,
         }
+    }
+}
+
+impl Lighting {
+    /// The sky's linear colour at image row fraction `y_frac` (0 top, 1 bottom; see "Sky" in
+    /// the module doc).
+    #[inline]
+    pub fn sky(&self, y_frac: f32) -> [f32; 3] {
+        let s = (1.0 - y_frac).clamp(0.0, 1.0);
+        let s = s * s.sqrt();
+        [
+            self.sky_horizon[0] + (self.sky_top[0] - self.sky_horizon[0]) * s,
+            self.sky_horizon[1] + (self.sky_top[1] - self.sky_horizon[1]) * s,
+            self.sky_horizon[2] + (self.sky_top[2] - self.sky_horizon[2]) * s,
+        ]
+    }
+
+    /// The sky light's colour factor per channel (`[1, 1, 1]` without `sky_tint`): the mean of
+    /// `sky_top` and `sky_horizon` scaled to luminance 1 (Rec. 709 weights), mixed with white by
+    /// `sky_tint`.
+    pub fn ambient_tint(&self) -> [f32; 3] {
+        if self.sky_tint <= 0.0 {
+            return [1.0; 3];
+        }
+        let m: [f32; 3] = std::array::from_fn(|c| 0.5 * (self.sky_top[c] + self.sky_horizon[c]));
+        let y = (0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2]).max(1e-6);
+        let t = self.sky_tint.clamp(0.0, 1.0);
+        m.map(|v| 1.0 + t * (v / y - 1.0))
     }
 }
 
@@ -1023,6 +1067,10 @@ struct Shader<'s, 'a> {
     /// sinks below the lowest height crosses the (continuous) surface, so it is a hit — up to
     /// rays that graze the DEM's edge within rounding (one pixel of the paper case changed).
     holes: bool,
+    /// The sky-view factor when `ambient_occlusion` > 0.
+    ao: Option<&'s AoMap>,
+    /// [`Lighting::ambient_tint`].
+    amb_tint: [f32; 3],
 }
 
 impl Shader<'_, '_> {
@@ -1071,9 +1119,13 @@ impl Shader<'_, '_> {
                     direct = 0.0;
                 }
             }
-            let amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
+            let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
+            if let Some(ao) = self.ao {
+                let w = l.ambient_occlusion;
+                amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
+            }
             for ch in 0..3 {
-                c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb);
+                c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb * self.amb_tint[ch]);
             }
         }
         self.haze(&mut c, hit.t);
@@ -1088,7 +1140,17 @@ impl Shader<'_, '_> {
     #[inline]
     fn haze(&self, c: &mut [f32; 3], t: f64) {
         let l = self.light;
-        if l.haze > 0.0 {
+        if l.haze > 0.0 && l.sky_tint > 0.0 {
+            // In-scattered sky light: the colour fades toward the horizon sky with depth.
+            let d = ((t - self.near) * self.inv_range).clamp(0.0, 1.0) as f32;
+            let k = (l.haze * d).clamp(0.0, 1.0);
+            let t = l.sky_tint.clamp(0.0, 1.0);
+            let mean = (c[0] + c[1] + c[2]) / 3.0;
+            for (ch, v) in c.iter_mut().enumerate() {
+                let target = mean + t * (l.sky_horizon[ch] - mean);
+                *v += (target - *v) * k;
+            }
+        } else if l.haze > 0.0 {
             let d = ((t - self.near) * self.inv_range).clamp(0.0, 1.0) as f32;
             let k = (l.haze * d).clamp(0.0, 1.0);
             let mean = (c[0] + c[1] + c[2]) / 3.0;
@@ -1102,14 +1164,7 @@ impl Shader<'_, '_> {
 
     #[inline]
     fn sky(&self, y_frac: f32) -> [f32; 3] {
-        let l = self.light;
-        let s = (1.0 - y_frac).clamp(0.0, 1.0);
-        let s = s * s.sqrt();
-        [
-            l.sky_horizon[0] + (l.sky_top[0] - l.sky_horizon[0]) * s,
-            l.sky_horizon[1] + (l.sky_top[1] - l.sky_horizon[1]) * s,
-            l.sky_horizon[2] + (l.sky_top[2] - l.sky_horizon[2]) * s,
-        ]
+        self.light.sky(y_frac)
     }
 }
 
@@ -1221,9 +1276,21 @@ pub struct PreparedView {
     /// The ray caster's per-grid-point sun map (the raster path keeps its own in `raster`).
     sun_map: Option<Vec<u8>>,
     holes: bool,
+    /// The sky-view factor when the lighting has ambient occlusion.
+    ao: Option<AoMap>,
+    /// Wall time of the sky-view factor, ms (`None` without ambient occlusion).
+    ao_ms: Option<f64>,
     raster: Option<raster_path::RasterGeometry>,
     /// The image's bytes, allocated (zeroed) here so that it happens during the set-up.
     image: Vec<u8>,
+}
+
+impl PreparedView {
+    /// Wall time of the ambient-occlusion map ([`sky_view_factor`]) inside [`prepare_view`], ms;
+    /// `None` without ambient occlusion.
+    pub fn ambient_occlusion_ms(&self) -> Option<f64> {
+        self.ao_ms
+    }
 }
 
 /// Everything of a render that reads only the heights: the path choice, the depth range, the
@@ -1264,25 +1331,46 @@ pub fn prepare_view(
         && light.shadows
         && (raster || sc.width * sc.height < w * h || accel.sweeps(sun));
     let empty = w == 0 || h == 0;
-    // The raster path computes the map itself, in parallel with its triangle setup.
-    let sun_map = if want_map && !raster && !empty {
-        Some(accel.sun_visibility(sun, eps, ctl)?)
-    } else {
-        None
-    };
+    // The raster path computes the map itself, in parallel with its triangle setup. The AO map
+    // (heights only) runs beside both.
+    let want_ao = light.shading && light.ambient_occlusion > 0.0 && !empty && accel.cw > 0;
     let holes = sc.heights.par_iter().any(|v| v.is_nan());
-    let raster = if raster && !empty {
-        let s = RasterSetup {
-            camera,
-            out_w,
-            out_h,
-            near,
-            far,
-            sun_map: want_map,
-        };
-        Some(raster_path::raster_geometry(accel, sun, eps, &s, ctl)?)
-    } else {
-        None
+    let (maps, ao) = rayon::join(
+        || -> Result<_, Canceled> {
+            let sun_map = (want_map && !raster && !empty)
+                .then(|| accel.sun_visibility(sun, eps, ctl))
+                .transpose()?;
+            let raster = if raster && !empty {
+                let s = RasterSetup {
+                    camera,
+                    out_w,
+                    out_h,
+                    near,
+                    far,
+                    sun_map: want_map,
+                };
+                Some(raster_path::raster_geometry(accel, sun, eps, &s, ctl)?)
+            } else {
+                None
+            };
+            Ok((sun_map, raster))
+        },
+        || {
+            want_ao
+                .then(|| {
+                    let t0 = std::time::Instant::now();
+                    let radius = 0.1 * (2.0 * accel.half_x).max(2.0 * accel.half_z);
+                    let m =
+                        sky_view_factor(sc.heights, sc.width, sc.height, sc.dx, sc.dy, radius, ctl);
+                    m.map(|m| (m, t0.elapsed().as_secs_f64() * 1e3))
+                })
+                .transpose()
+        },
+    );
+    let ((sun_map, raster), ao) = (maps?, ao?);
+    let (ao, ao_ms) = match ao {
+        Some((m, ms)) => (Some(m), Some(ms)),
+        None => (None, None),
     };
     Ok(PreparedView {
         camera: *camera,
@@ -1296,6 +1384,8 @@ pub fn prepare_view(
         eps,
         sun_map,
         holes,
+        ao,
+        ao_ms,
         raster,
         image: vec![0u8; w * h * 4],
     })
@@ -1344,6 +1434,8 @@ pub fn render_prepared(
         eps: view.eps,
         sun_map: view.sun_map.as_deref(),
         holes: view.holes,
+        ao: view.ao.as_ref(),
+        amb_tint: light.ambient_tint(),
     };
     if let Some(geo) = &view.raster {
         return render_raster(&shader, geo, gen, view.image, rows, ctl, frac);

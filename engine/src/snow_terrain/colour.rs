@@ -2,8 +2,8 @@
 //! descriptor of the smoothed field but drawn on the original heights by the renderer.
 //!
 //! The blend is done in linear RGB (the paper does not say; blending sRGB bytes darkens the
-//! mid-tones of a snow/rock transition). The orthophoto replacement of the rock colour (the
-//! paper's future work, SPEC §1 step 7) is not implemented yet.
+//! mid-tones of a snow/rock transition). With an orthophoto the rock colour varies per grid point
+//! ([`albedo_with_rock`], placed by [`super::ortho`]).
 
 use rayon::prelude::*;
 
@@ -22,6 +22,18 @@ pub fn albedo(t: &[f32], rock_srgb: [u8; 3], snow_srgb: [u8; 3]) -> Vec<[f32; 3]
                 t * rock[1] + (1.0 - t) * snow[1],
                 t * rock[2] + (1.0 - t) * snow[2],
             ]
+        })
+        .collect()
+}
+
+/// [`albedo`] with a rock colour per grid point (linear RGB, from an orthophoto).
+pub fn albedo_with_rock(t: &[f32], rock: &[[f32; 3]], snow_srgb: [u8; 3]) -> Vec<[f32; 3]> {
+    let snow = snow_srgb.map(srgb8_to_linear);
+    t.par_iter()
+        .zip(rock.par_iter())
+        .map(|(&t, rock)| {
+            let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
+            std::array::from_fn(|c| t * rock[c] + (1.0 - t) * snow[c])
         })
         .collect()
 }

@@ -7,15 +7,17 @@
 pub mod altitude;
 pub mod colour;
 pub mod descriptor;
+pub mod ortho;
 pub mod params;
 pub mod run;
 pub mod smooth;
 pub mod sun;
 pub mod transfer;
 pub mod tsa;
+pub mod view;
 
 pub use params::Params;
-pub use run::run;
+pub use run::{run, run_with_rock};
 
 /// The benchmarks' overview render of `dem` with per-cell `colour`: the default camera (orbit,
 /// azimuth 200°, elevation 30°, 40° field of view, framing the terrain) and sun (azimuth 180°,

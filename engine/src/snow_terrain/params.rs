@@ -66,6 +66,10 @@ pub struct WireParams {
     pub vertical_scale: Option<f64>,
     pub sweep: Option<Sweep>,
     pub outputs: Option<Vec<String>>,
+    // View (issue 17): see `View`.
+    pub ambient_occlusion: Option<f32>,
+    pub sky_tint: Option<f32>,
+    pub auto_exaggeration: Option<bool>,
 }
 
 /// The files a run can produce besides `report.json` (always) and `sweep.png` (with `sweep`).
@@ -134,6 +138,58 @@ pub struct Params {
     /// One validated parameter set per sweep value (derived from `sweep`).
     #[serde(skip)]
     pub sweep_runs: Vec<Params>,
+    /// How the terrain is shown (issue 17).
+    #[serde(flatten)]
+    pub view: View,
+}
+
+// ---- View (issue 17, the view half): preset-dependent shading, framing and exaggeration. ----
+
+/// How the terrain is shown. Each field's default depends on `preset`; a value given wins.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct View {
+    /// Ambient occlusion of the sky light, 0–1: the sky light is multiplied by `1 − w + w·SVF`,
+    /// SVF the horizon-based sky-view factor of the rendered height field
+    /// ([`crate::render::terrain::sky_view_factor`]), so hollows and valley floors are darker
+    /// than ridges. Default 1 (`paper`: 0).
+    pub ambient_occlusion: f32,
+    /// How much the sky light and the haze take the sky's colour, 0–1: 1 gives shade on snow a
+    /// cool blue (the clear sky lights it) and an aerial perspective that fades distant
+    /// terrain toward the horizon sky; 0 is a neutral sky light and the paper's grey haze.
+    /// Default 1 (`paper`: 0).
+    pub sky_tint: f32,
+    /// Choose the view's vertical exaggeration from the DEM when the relief is small against
+    /// its extent: `e = clamp(0.08 / (relief / extent), 1, 8)` rounded to 0.1, relief = highest
+    /// − lowest valid elevation, extent = the longer horizontal side, both in metres (a 150 km
+    /// DEM with 3 km of relief is drawn ×4; a 10 km DEM with 1 km of relief ×1). The chosen
+    /// value is in `report.json` (`view.vertical_exaggeration`). It applies to the render only
+    /// (`render.png`, `sweep.png`): the descriptor and `terrain.glb` keep
+    /// `vertical_exaggeration`. False: the view uses `vertical_exaggeration`. Default: true
+    /// unless `vertical_exaggeration` is given (`paper`: false).
+    pub auto_exaggeration: bool,
+    /// Orbit cameras without a `distance` frame the terrain's own grid points (centred on their
+    /// projection, within 95 % of the frame) instead of its bounding box, so the terrain fills
+    /// the image. Not a parameter: true unless the preset is `paper`.
+    #[serde(skip)]
+    pub fill_frame: bool,
+}
+
+impl View {
+    /// The view of `preset` (already validated by [`Params`]): `paper` is the look of the
+    /// paper's figures and of this pipeline before issue 17 (flat sky light, grey haze, the
+    /// bounding-box camera, exaggeration 1 unless given).
+    fn from_wire(w: &WireParams, preset: &str) -> Result<Self, ParamError> {
+        let paper = preset == "paper";
+        let on = if paper { 0.0 } else { 1.0 };
+        Ok(View {
+            ambient_occlusion: range("ambient_occlusion", w.ambient_occlusion, on, 0.0, 1.0)?,
+            sky_tint: range("sky_tint", w.sky_tint, on, 0.0, 1.0)?,
+            auto_exaggeration: w
+                .auto_exaggeration
+                .unwrap_or(!paper && w.vertical_exaggeration.is_none()),
+            fill_frame: !paper,
+        })
+    }
 }
 
 /// Parameters a sweep may vary.
@@ -160,6 +216,8 @@ pub const SWEEPABLE: &[&str] = &[
     "sun_spread_deg",
     "sun_min_slope_deg",
     "haze",
+    "ambient_occlusion",
+    "sky_tint",
 ];
 
 /// Validates `outputs`: known names, no repeats; returned in [`OUTPUT_NAMES`] order.
@@ -399,6 +457,7 @@ impl Params {
             Some(c) => Some(range("vertical_scale", Some(c), 1.0, 1e-9, 1e6)?),
             None => None,
         };
+        let view = View::from_wire(w, &preset)?;
         Ok(Params {
             preset,
             width,
@@ -426,6 +485,7 @@ impl Params {
             sweep: None,
             outputs: output_names(w.outputs.as_deref())?,
             sweep_runs: Vec::new(),
+            view,
         })
     }
 }

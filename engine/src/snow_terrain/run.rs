@@ -7,9 +7,11 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::altitude::snow_by_elevation_decile;
-use super::colour::albedo;
+use super::colour::{albedo, albedo_with_rock};
 use super::descriptor;
+use super::ortho::RockColours;
 use super::params::Params;
+use super::view;
 use crate::formats::geotiff_write::write_float32_geotiff;
 use crate::formats::glb::terrain_glb;
 use crate::formats::png_write::{encode_rgba, RgbaPngStream};
@@ -50,6 +52,8 @@ fn lighting(dem: &Dem, p: &Params) -> Lighting {
         shadows: p.shadows,
         haze: p.haze,
         samples: p.samples,
+        ambient_occlusion: p.view.ambient_occlusion,
+        sky_tint: p.view.sky_tint,
         ..Lighting::default()
     }
 }
@@ -63,12 +67,32 @@ fn world_heights(dem: &Dem, exaggeration: f32) -> std::borrow::Cow<'_, [f32]> {
     }
 }
 
-/// Colours of the descriptor `t` for the given parameters.
-fn colours(t: &[f32], p: &Params) -> Vec<[f32; 3]> {
+/// The view's vertical exaggeration: automatic ([`view::auto_exaggeration`]) or the given one.
+fn view_exaggeration(dem: &Dem, p: &Params) -> f32 {
+    if p.view.auto_exaggeration {
+        view::auto_exaggeration(dem)
+    } else {
+        p.descriptor.vertical_exaggeration
+    }
+}
+
+/// Colours of the descriptor `t` for the given parameters (the rock colour per grid point when
+/// an orthophoto gives it).
+fn colours(t: &[f32], p: &Params, rock: Option<&RockColours>) -> Vec<[f32; 3]> {
     // Validated at parse time; fall back to mid-grey rather than fail.
-    let rock = parse_hex_color("rock_color", &p.rock_color).unwrap_or([110, 102, 92]);
     let snow = parse_hex_color("snow_color", &p.snow_color).unwrap_or([244, 247, 251]);
+    if let Some(r) = rock {
+        return albedo_with_rock(t, &r.rgb, snow);
+    }
+    let rock = parse_hex_color("rock_color", &p.rock_color).unwrap_or([110, 102, 92]);
     albedo(t, rock, snow)
+}
+
+/// `rock_color` in linear RGB (the fallback where an orthophoto has no pixels).
+pub fn rock_linear(p: &Params) -> [f32; 3] {
+    parse_hex_color("rock_color", &p.rock_color)
+        .unwrap_or([110, 102, 92])
+        .map(crate::render::image::srgb8_to_linear)
 }
 
 /// `descriptor.png`: t as grey (0 = snow black… no: 255·t, so snow is dark and rock bright is
@@ -98,15 +122,34 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
 /// the descriptor's many small parallel loops then split their work in the pool directly
 /// instead of each waking the pool from outside and waiting to be woken in turn.
 pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
-    rayon::scope(|_| run_in_pool(dem, p, ctl))
+    run_with_rock(dem, None, p, ctl)
 }
 
-fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+/// [`run`] with the rock colour per grid point from an orthophoto ([`super::ortho`]; SPEC §1
+/// step 7), or `rock_color` when `None`.
+pub fn run_with_rock(
+    dem: &Dem,
+    rock: Option<&RockColours>,
+    p: &Params,
+    ctl: &dyn Control,
+) -> Result<Vec<Output>, Canceled> {
+    rayon::scope(|_| run_in_pool(dem, rock, p, ctl))
+}
+
+fn run_in_pool(
+    dem: &Dem,
+    rock: Option<&RockColours>,
+    p: &Params,
+    ctl: &dyn Control,
+) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(String, f64)> = Vec::new();
     let ms = |t0: Instant| t0.elapsed().as_secs_f64() * 1e3;
 
-    let heights = world_heights(dem, p.descriptor.vertical_exaggeration);
+    // The descriptor and terrain.glb see `vertical_exaggeration`; the render sees the view's
+    // (automatic unless given, see `View::auto_exaggeration`).
+    let exaggeration = view_exaggeration(dem, p);
+    let heights = world_heights(dem, exaggeration);
     let light = lighting(dem, p);
     // The render's set-up that needs only the heights and the camera (path choice, mesh,
     // rasteriser set-up, gradients, sun map: `prepare_view`) runs beside the descriptor and the
@@ -120,7 +163,7 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
                 let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
                 ctl.progress("colour", DESCRIPTOR_END);
                 let t0 = Instant::now();
-                let colour = colours(&d.t, p);
+                let colour = colours(&d.t, p, rock);
                 Ok((d, colour, ms(t0)))
             },
             || -> Result<_, Canceled> {
@@ -130,9 +173,12 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
                 let t0 = Instant::now();
                 let scene = scene_of(dem, &heights, &[]);
                 let accel = TerrainAccel::new_geometry(&scene);
-                let camera = p
-                    .camera
-                    .camera(scene.bounds(), f64::from(p.width) / f64::from(p.height));
+                let camera = view::camera(
+                    &p.camera,
+                    &scene,
+                    f64::from(p.width) / f64::from(p.height),
+                    p.view.fill_frame,
+                );
                 let view = prepare_view(
                     &accel,
                     &camera,
@@ -166,6 +212,9 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
     // finished, and the thread that completes the next band in row order feeds the deflate
     // stream (`RgbaPngStream`); what is left after the last band is a few rows.
     let png_stream = RgbaPngStream::new(p.width, p.height);
+    let ao_ms = geometry
+        .as_ref()
+        .and_then(|(_, view, _)| view.ambient_occlusion_ms());
     let ((image, setup_ms, render_ms), (tif, (preview, (glb, figures)))) = rayon::join(
         || {
             let Some((accel, view, setup_ms)) = geometry else {
@@ -198,8 +247,15 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
                             rayon::join(
                                 || {
                                     p.wants("terrain.glb").then(|| {
+                                        let glb_heights = if exaggeration
+                                            == p.descriptor.vertical_exaggeration
+                                        {
+                                            std::borrow::Cow::Borrowed(&*heights)
+                                        } else {
+                                            world_heights(dem, p.descriptor.vertical_exaggeration)
+                                        };
                                         terrain_glb(
-                                            &heights,
+                                            &glb_heights,
                                             dem.width,
                                             dem.height,
                                             dem.dx,
@@ -225,6 +281,10 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
     let image = image?;
     if image.is_some() {
         timings.push(("render_setup".to_string(), setup_ms));
+        // Part of render_setup (beside the sun map).
+        if let Some(ms) = ao_ms {
+            timings.push(("ambient_occlusion".to_string(), ms));
+        }
         timings.push(("render".to_string(), render_ms));
     }
     let overlap_ms = (ms(t0) - render_ms).max(0.0);
@@ -232,7 +292,7 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
     let mut outputs = Vec::new();
     if !p.sweep_runs.is_empty() {
         let t0 = Instant::now();
-        let sheet = sweep_sheet(dem, p, ctl, (render_end, RENDER_END))?;
+        let sheet = sweep_sheet(dem, rock, p, ctl, (render_end, RENDER_END))?;
         outputs.push(Output::new("sweep.png", "image/png", encode_rgba(&sheet)));
         timings.push(("sweep".to_string(), ms(t0)));
     }
@@ -265,6 +325,13 @@ fn run_in_pool(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, 
             "elevation_mean": stats.map(|s| s.2),
         },
         "resolved": d.resolved,
+        "view": {
+                        "vertical_exaggeration": exaggeration,
+            "vertical_exaggeration_auto": p.view.auto_exaggeration,
+            "relief_m": view::relief_and_extent(dem).map(|r| r.0),
+            "extent_m": view::relief_and_extent(dem).map(|r| r.1),
+        },
+        "ortho": rock.map(|r| json!({"placement": r.placement, "coverage": r.coverage})),
         "snow_covered_fraction": covered as f64 / valid.max(1) as f64,
         "mean_snow": mean_snow,
         "snow_by_elevation_decile": deciles,
@@ -311,6 +378,7 @@ fn report_figures(dem: &Dem, snow: &[f32]) -> (usize, usize, f64, Option<(f32, f
 /// output size, labelled `param = value`.
 fn sweep_sheet(
     dem: &Dem,
+    rock: Option<&RockColours>,
     p: &Params,
     ctl: &dyn Control,
     frac: (f32, f32),
@@ -331,13 +399,16 @@ fn sweep_sheet(
         let f1 = frac.0 + (frac.1 - frac.0) * (i as f32 + 0.5) / n as f32;
         let f2 = frac.0 + (frac.1 - frac.0) * (i as f32 + 1.0) / n as f32;
         let d = descriptor::compute(dem, &run.descriptor, ctl, (f0, f1))?;
-        let colour = colours(&d.t, run);
-        let heights = world_heights(dem, run.descriptor.vertical_exaggeration);
+        let colour = colours(&d.t, run, rock);
+        let heights = world_heights(dem, view_exaggeration(dem, run));
         let scene = scene_of(dem, &heights, &colour);
         let accel = TerrainAccel::new(&scene);
-        let camera = run
-            .camera
-            .camera(scene.bounds(), f64::from(tw) / f64::from(th));
+        let camera = view::camera(
+            &run.camera,
+            &scene,
+            f64::from(tw) / f64::from(th),
+            run.view.fill_frame,
+        );
         let img = render_with(&accel, &camera, &lighting(dem, run), tw, th, ctl, (f1, f2))?;
         tiles.push((img, format!("{name} = {value}")));
     }

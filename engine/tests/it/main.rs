@@ -22,4 +22,5 @@ mod snow_cover_pipeline;
 mod snow_shape;
 mod snow_terrain;
 mod snow_terrain_winter;
+mod terrain_view;
 mod volume_formats;

@@ -36,7 +36,7 @@ fn corrupt(e: impl std::fmt::Display) -> InputError {
     }
 }
 
-fn map_tiff_err(e: tiff::TiffError) -> InputError {
+pub(crate) fn map_tiff_err(e: tiff::TiffError) -> InputError {
     match e {
         tiff::TiffError::UnsupportedError(u) => {
             InputError::UnsupportedFormat(format!("TIFF variant not supported: {u}"))
@@ -123,7 +123,7 @@ pub(crate) fn parse_nodata(s: &str) -> Option<f64> {
     s.parse::<f64>().ok()
 }
 
-fn read_geo_tags(dec: &mut Decoder<Cursor<&[u8]>>) -> Result<GeoTags, InputError> {
+pub(crate) fn read_geo_tags(dec: &mut Decoder<Cursor<&[u8]>>) -> Result<GeoTags, InputError> {
     let mut f64s = |tag: Tag| -> Result<Option<Vec<f64>>, InputError> {
         match dec.find_tag(tag).map_err(map_tiff_err)? {
             Some(v) => Ok(Some(v.into_f64_vec().map_err(map_tiff_err)?)),

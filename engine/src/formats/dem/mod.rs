@@ -17,8 +17,8 @@
 //! the decoder's own buffer of the stored sample type).
 
 mod asc;
-mod geo;
-mod geotiff;
+pub(crate) mod geo;
+pub(crate) mod geotiff;
 mod hgt;
 mod npy;
 mod png16;

@@ -12,7 +12,8 @@
 //! the barycentrics.
 //!
 //! **Shading record.** Per grid point one `[f32; 8]`: linear albedo (3), sun visibility, dh/dx,
-//! dh/dz (the corner gradients of [`super::TerrainAccel::hit_normal`]) and two pads, so a sample's
+//! dh/dz (the corner gradients of [`super::TerrainAccel::hit_normal`]), the sky light's
+//! ambient-occlusion factor and a pad, so a sample's
 //! bilinear interpolation reads two 64-byte runs of the grid instead of four arrays, and the
 //! eight lanes interpolate together. Shading is the ray caster's ([`Shader::shade_hit`]) in
 //! `f32` (the gradients were `f64`; the normals differ by ~1e-7).
@@ -151,13 +152,18 @@ pub(super) fn render_raster(
     let proj = rast.projection();
     let out_h = proj.height;
     ctl.checkpoint()?;
+    let aw = base.light.ambient_occlusion;
     let records: Vec<[f32; 8]> = grads
         .par_iter()
         .zip(s.albedo.par_iter())
         .enumerate()
         .map(|(k, (g, a))| {
             let sun = map.as_ref().map_or(1.0, |m| f32::from(m[k]));
-            [a[0], a[1], a[2], sun, g[0] as f32, g[1] as f32, 0.0, 0.0]
+            // The sky light's occlusion factor (1 without AO).
+            let ao = base.ao.map_or(1.0, |ao| {
+                1.0 - aw + aw * ao.at(k % s.width, k / s.width, 0.0, 0.0)
+            });
+            [a[0], a[1], a[2], sun, g[0] as f32, g[1] as f32, ao, 0.0]
         })
         .collect();
     let shader = RasterShader {
@@ -320,9 +326,12 @@ impl RasterShader<'_, '_> {
             } else {
                 0.0
             };
-            let amb = l.ambient * (0.5 + 0.5 * n[1]);
+            let mut amb = l.ambient * (0.5 + 0.5 * n[1]);
+            if b.ao.is_some() {
+                amb *= m[6];
+            }
             for ch in 0..3 {
-                c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb);
+                c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb * b.amb_tint[ch]);
             }
         }
         b.haze(&mut c, hit.t);
