@@ -398,7 +398,10 @@ pub fn decode_parts(
         }
         Params::SnowCover(p) => {
             // snow_cover::run::decode, with the sidecar files the CLI passes as aux inputs.
-            let mesh = p.view.decode_with(bytes, filename, aux, limits).map_err(main)?;
+            let mesh = p
+                .view
+                .decode_with(bytes, filename, aux, limits)
+                .map_err(main)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
         Params::Cloud(p) => {

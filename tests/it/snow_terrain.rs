@@ -181,6 +181,7 @@ async fn report_describes_input_params_and_stages() {
             "slope",
             "colour",
             "render_setup",
+            "ambient_occlusion",
             "render",
             "encode"
         ]

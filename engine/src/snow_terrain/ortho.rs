@@ -5,7 +5,10 @@
 //! **Placement.** When both the DEM and the ortho are georeferenced, each grid point (the centre
 //! of its cell in the DEM's transform) goes through the DEM's transform to CRS coordinates and
 //! through the inverse of the ortho's transform to ortho pixel coordinates, sampled bilinearly
-//! (pixel centres at `+0.5`). Both must be in the same CRS: equal EPSG codes, or the same UTM zone
+//! (pixel centres at `+0.5`). When a cell spans more than one ortho pixel (a 90 m DEM under a
+//! 30 m image) its colour is the mean over the cell's footprint — n × m bilinear samples on a
+//! regular grid inside the cell, n and m the footprint's extent in ortho pixels rounded up (at
+//! most 8 each) — so the rock colour is the cell's area colour, not one aliased point of it. Both must be in the same CRS: equal EPSG codes, or the same UTM zone
 //! on WGS 84, ETRS89, SIRGAS 2000 or GDA94 (datums tied to ITRF that agree within about a metre,
 //! far below a DEM cell); a file without an EPSG code is taken to be in the other's CRS.
 //! Otherwise the request is refused naming both CRSs (no reprojection). Otherwise (a plain PNG or
@@ -89,8 +92,8 @@ pub fn rock_colours(
         _ => None,
     };
     let (ow, oh) = (ortho.width as f64, ortho.height as f64);
-    let to_pixel = |col: usize, row: usize| -> (f64, f64) {
-        let (c, r) = (col as f64 + 0.5, row as f64 + 0.5);
+    // A point of the DEM's grid, in cell units (cell centres at +0.5), → ortho pixel coordinates.
+    let to_pixel = |c: f64, r: f64| -> (f64, f64) {
         match georef {
             Some((t, o, det)) => {
                 let x = t[0] + c * t[1] + r * t[2];
@@ -135,6 +138,12 @@ pub fn rock_colours(
                 + a * b * p11[c]
         }))
     };
+    // The footprint of one cell in ortho pixels, along the DEM's columns and rows.
+    let (u0, v0) = to_pixel(0.0, 0.0);
+    let (uc, vc) = to_pixel(1.0, 0.0);
+    let (ur, vr) = to_pixel(0.0, 1.0);
+    let extent = |a: f64, b: f64| (a.hypot(b).ceil() as usize).clamp(1, 8);
+    let (nc, nr) = (extent(uc - u0, vc - v0), extent(ur - u0, vr - v0));
     let mut rgb = vec![fallback; w * h];
     let covered: usize = rgb
         .par_chunks_mut(w.max(1))
@@ -142,10 +151,27 @@ pub fn rock_colours(
         .map(|(row, out)| {
             let mut n = 0;
             for (col, o) in out.iter_mut().enumerate() {
-                let (u, v) = to_pixel(col, row);
-                if let Some(s) = sample(u, v) {
+                // The mean (alpha-weighted colour, alpha) over the samples inside the ortho.
+                let (mut sum, mut k) = ([0.0f32; 4], 0u32);
+                for a in 0..nc {
+                    for b in 0..nr {
+                        let c = col as f64 + (a as f64 + 0.5) / nc as f64;
+                        let r = row as f64 + (b as f64 + 0.5) / nr as f64;
+                        let (u, v) = to_pixel(c, r);
+                        if let Some(s) = sample(u, v) {
+                            for i in 0..3 {
+                                sum[i] += s[3] * s[i];
+                            }
+                            sum[3] += s[3];
+                            k += 1;
+                        }
+                    }
+                }
+                if k > 0 {
                     n += 1;
-                    *o = std::array::from_fn(|c| s[3] * s[c] + (1.0 - s[3]) * fallback[c]);
+                    let k = k as f32;
+                    let alpha = sum[3] / k;
+                    *o = std::array::from_fn(|c| sum[c] / k + (1.0 - alpha) * fallback[c]);
                 }
             }
             n

@@ -56,6 +56,7 @@ pub struct WireParams {
     pub sun_elevation_deg: Option<f64>,
     pub rock_color: Option<String>,
     pub snow_color: Option<String>,
+    pub sea_color: Option<String>,
     pub shading: Option<bool>,
     pub shadows: Option<bool>,
     pub ambient: Option<f32>,
@@ -110,6 +111,11 @@ pub struct Params {
     pub rock_color: String,
     /// Snow colour, sRGB hex. Default `#f4f7fb`.
     pub snow_color: String,
+    /// Colour of the sea: grid points at or below `sea_level` (which hold no snow) are drawn in
+    /// it instead of `rock_color` (or the orthophoto), so a coast reads as a coast and not as a
+    /// grey rock plain. sRGB hex. Default `#2a4a63`; there is no sea (and no sea colour) when
+    /// `sea_level` is unset, as under the `paper` preset.
+    pub sea_color: Option<String>,
     /// Lambert shading from the sun plus sky ambient; false draws flat colours like the paper.
     /// Default true.
     pub shading: bool,
@@ -449,6 +455,12 @@ impl Params {
         let snow_color = w.snow_color.clone().unwrap_or_else(|| "#f4f7fb".into());
         parse_hex_color("rock_color", &rock_color)?;
         parse_hex_color("snow_color", &snow_color)?;
+        let sea_color = descriptor
+            .sea_level
+            .map(|_| w.sea_color.clone().unwrap_or_else(|| "#2a4a63".into()));
+        if let Some(c) = &sea_color {
+            parse_hex_color("sea_color", c)?;
+        }
         let cell_size = match w.cell_size {
             Some(c) => Some(range("cell_size", Some(c), 1.0, 1e-6, 1e6)?),
             None => None,
@@ -468,6 +480,7 @@ impl Params {
             sun_elevation_deg: range("sun_elevation_deg", w.sun_elevation_deg, 35.0, 1.0, 90.0)?,
             rock_color,
             snow_color,
+            sea_color,
             shading: w.shading.unwrap_or(true),
             shadows: w.shadows.unwrap_or(true),
             ambient: range("ambient", w.ambient, 0.35, 0.0, 1.0)?,

@@ -78,14 +78,28 @@ fn view_exaggeration(dem: &Dem, p: &Params) -> f32 {
 
 /// Colours of the descriptor `t` for the given parameters (the rock colour per grid point when
 /// an orthophoto gives it).
-fn colours(t: &[f32], p: &Params, rock: Option<&RockColours>) -> Vec<[f32; 3]> {
+fn colours(dem: &Dem, t: &[f32], p: &Params, rock: Option<&RockColours>) -> Vec<[f32; 3]> {
     // Validated at parse time; fall back to mid-grey rather than fail.
     let snow = parse_hex_color("snow_color", &p.snow_color).unwrap_or([244, 247, 251]);
-    if let Some(r) = rock {
-        return albedo_with_rock(t, &r.rgb, snow);
+    let mut c = match rock {
+        Some(r) => albedo_with_rock(t, &r.rgb, snow),
+        None => albedo(
+            t,
+            parse_hex_color("rock_color", &p.rock_color).unwrap_or([110, 102, 92]),
+            snow,
+        ),
+    };
+    // The sea (`sea_color`): grid points at or below `sea_level`, which hold no snow.
+    if let (Some(sea), Some(level)) = (&p.sea_color, p.descriptor.sea_level) {
+        if let Ok(sea) = parse_hex_color("sea_color", sea) {
+            let sea = sea.map(crate::render::image::srgb8_to_linear);
+            c.par_iter_mut()
+                .zip(dem.heights.par_iter())
+                .filter(|(_, &h)| h <= level)
+                .for_each(|(c, _)| *c = sea);
+        }
     }
-    let rock = parse_hex_color("rock_color", &p.rock_color).unwrap_or([110, 102, 92]);
-    albedo(t, rock, snow)
+    c
 }
 
 /// `rock_color` in linear RGB (the fallback where an orthophoto has no pixels).
@@ -163,7 +177,7 @@ fn run_in_pool(
                 let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
                 ctl.progress("colour", DESCRIPTOR_END);
                 let t0 = Instant::now();
-                let colour = colours(&d.t, p, rock);
+                let colour = colours(dem, &d.t, p, rock);
                 Ok((d, colour, ms(t0)))
             },
             || -> Result<_, Canceled> {
@@ -399,7 +413,7 @@ fn sweep_sheet(
         let f1 = frac.0 + (frac.1 - frac.0) * (i as f32 + 0.5) / n as f32;
         let f2 = frac.0 + (frac.1 - frac.0) * (i as f32 + 1.0) / n as f32;
         let d = descriptor::compute(dem, &run.descriptor, ctl, (f0, f1))?;
-        let colour = colours(&d.t, run, rock);
+        let colour = colours(dem, &d.t, run, rock);
         let heights = world_heights(dem, view_exaggeration(dem, run));
         let scene = scene_of(dem, &heights, &colour);
         let accel = TerrainAccel::new(&scene);
