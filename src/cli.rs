@@ -192,12 +192,14 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
     // textures, a .gltf's buffers and images) read from beside the input, as auxiliary inputs.
     if matches!(name, "snow-cover" | "dust") {
         let dir = args.input.parent().map(PathBuf::from).unwrap_or_default();
-        aux.extend(phenomena_engine::formats::mesh::gather_sidecars(&input, filename.as_deref(), &mut |rel| {
-            std::fs::read(dir.join(rel)).ok()
-        }));
+        aux.extend(phenomena_engine::formats::mesh::gather_sidecars(
+            &input,
+            filename.as_deref(),
+            &mut |rel| std::fs::read(dir.join(rel)).ok(),
+        ));
     }
-    let result = pool
-        .install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &aux, &ctl));
+    let result =
+        pool.install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &aux, &ctl));
     bar.finish_and_clear();
     let outputs = match result {
         Ok(o) => o,
