@@ -42,6 +42,9 @@ pub enum ApiError {
     },
     #[error("{detail}")]
     QueueFull { detail: String, retry_after: u64 },
+    /// The process's decode budget stayed in use (see `api::admission`).
+    #[error("{detail}")]
+    Overloaded { detail: String, retry_after: u64 },
     #[error("{0}")]
     Unavailable(String),
     /// Something internal failed; the message is logged, never sent.
@@ -133,6 +136,9 @@ impl ApiError {
             ApiError::QueueFull { .. } => {
                 (StatusCode::TOO_MANY_REQUESTS, "queue-full", "Queue full")
             }
+            ApiError::Overloaded { .. } => {
+                (StatusCode::TOO_MANY_REQUESTS, "overloaded", "Overloaded")
+            }
             ApiError::Unavailable(_) => (
                 StatusCode::SERVICE_UNAVAILABLE,
                 "unavailable",
@@ -223,7 +229,9 @@ impl IntoResponse for ApiError {
             header::CONTENT_TYPE,
             HeaderValue::from_static("application/problem+json"),
         );
-        if let ApiError::QueueFull { retry_after, .. } = &self {
+        if let ApiError::QueueFull { retry_after, .. } | ApiError::Overloaded { retry_after, .. } =
+            &self
+        {
             resp.headers_mut()
                 .insert(header::RETRY_AFTER, HeaderValue::from(*retry_after));
         }

@@ -131,6 +131,7 @@ pub async fn state_with(
         .store_bytes
         .set(i64::try_from(jobs.store().blob_bytes().await).unwrap_or(i64::MAX));
     Ok(AppState {
+        decodes: api::DecodeBudget::new(cfg.decode_budget_bytes, api::DECODE_WAIT),
         cfg: Arc::new(cfg),
         jobs,
         clouds,

@@ -95,6 +95,12 @@ pub trait PipelineSet: Send + Sync + 'static {
         self.check_input(pipeline, params, input, filename)
             .map_err(|e| (None, e))
     }
+    /// The most memory, in bytes, that checking one input of `pipeline` can allocate besides
+    /// the input's bytes, with auxiliary inputs (`with_aux`) or without: what a check reserves
+    /// from the decode budget. Default 0 (a pipeline whose check allocates nothing).
+    fn decode_cost(&self, _pipeline: &str, _with_aux: bool) -> u64 {
+        0
+    }
     /// Decodes the input like [`PipelineSet::check_input`] and describes it (a volume's
     /// dimensions and box) for resources that keep the input, such as cloud scenes.
     fn describe_input(
@@ -180,6 +186,10 @@ impl PipelineSet for EnginePipelines {
                 detail,
             },
         })
+    }
+
+    fn decode_cost(&self, name: &str, with_aux: bool) -> u64 {
+        PipelineKind::parse(name).map_or(0, |k| pipeline::decode_cost(k, &self.limits, with_aux))
     }
 
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {

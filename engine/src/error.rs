@@ -32,7 +32,9 @@ pub enum InputError {
         detail: String,
     },
     /// The declared size exceeds a configured limit; refused before allocating (maps to 413).
-    #[error("input too large: {what} is {actual}, the limit is {max}")]
+    /// `actual` is `u64::MAX` when the declared sizes overflow 64 bits when multiplied out
+    /// (the message then says so instead of printing the saturated product).
+    #[error("input too large: {what} is {}, the limit is {max}", count(*actual))]
     TooLarge {
         what: &'static str,
         actual: u64,
@@ -44,4 +46,33 @@ pub enum InputError {
     /// A parameter needed to interpret the input is missing or wrong (e.g. `cell_size` for PNG).
     #[error(transparent)]
     Param(#[from] ParamError),
+}
+
+/// A declared count for a message: `u64::MAX` stands for a product that overflowed.
+fn count(n: u64) -> String {
+    if n == u64::MAX {
+        "more than 2^64 (the declared sizes overflow when multiplied)".to_string()
+    } else {
+        n.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_overflowed_count_is_not_printed_as_a_number() {
+        let e = InputError::TooLarge {
+            what: "DEM cells",
+            actual: u64::MAX,
+            max: 1 << 26,
+        };
+        assert_eq!(
+            e.to_string(),
+            "input too large: DEM cells is more than 2^64 (the declared sizes overflow when \
+             multiplied), the limit is 67108864"
+        );
+        assert!(!e.to_string().contains("18446744073709551615"));
+    }
 }

@@ -30,6 +30,36 @@ impl Default for Limits {
     }
 }
 
+/// The most memory, in bytes, that decoding one input of `kind` can allocate under `limits`
+/// (besides the input's own bytes), with an auxiliary input (`with_aux`: snow-terrain's
+/// orthophoto) or without. The server reserves it from its decode budget before it checks an
+/// input, so concurrent checks cannot add up to more than the budget. Worst cases:
+/// - **DEM**: 12 B per cell of `max_input_cells`: a sample buffer of up to 8 B per cell
+///   (float64 GeoTIFF strips) and the `f32` grid; an orthophoto adds 16 B per cell (its RGBA8
+///   decode and the linear RGB rock colours on the DEM's grid).
+/// - **Mesh**: 160 B per triangle of `max_input_triangles` (indices, 12 B, and up to three
+///   vertices of position, normal, UV and colour, 144 B, plus parser slack) and 4 B per pixel of
+///   the texture budget (`MeshOptions::max_texture_pixels`).
+/// - **Volume**: 12 B per voxel of `max_input_cells` (a float64 sample buffer and the `f32`
+///   grid); a cloud version's ambient field adds 12 B per voxel.
+///
+/// An upper bound from the limits alone, not from the file: a 262 KB deflate GeoTIFF can decode
+/// to 8192² cells, so nothing short of its header says how much a file needs. Rejected: a
+/// header reader per format (ten formats) to refine it; the budget is what bounds memory, and
+/// small inputs decode in milliseconds, so reserving the worst case costs them little time.
+pub fn decode_cost(kind: PipelineKind, limits: &Limits, with_aux: bool) -> u64 {
+    let cells = limits.max_input_cells;
+    let aux = u64::from(with_aux);
+    match kind {
+        PipelineKind::SnowTerrain => cells.saturating_mul(12 + 16 * aux),
+        PipelineKind::SnowCover | PipelineKind::Dust => limits
+            .max_input_triangles
+            .saturating_mul(160)
+            .saturating_add(crate::formats::mesh::MeshOptions::default().max_texture_pixels * 4),
+        PipelineKind::Cloud | PipelineKind::CloudEdit => cells.saturating_mul(12 + 12 * aux),
+    }
+}
+
 /// The pipelines.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PipelineKind {

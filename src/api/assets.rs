@@ -1,6 +1,8 @@
 //! `/v1/assets`: upload an input once, refer to it by SHA-256 afterwards.
 
-use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
+use axum::extract::{FromRequest, Multipart, Query, Request, State};
+
+use super::extract::ApiPath;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -136,7 +138,7 @@ impl From<AssetRecord> for AssetView {
 /// `GET /v1/assets/{id}`: the asset's metadata.
 pub async fn get(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
 ) -> Result<Json<AssetView>, ApiError> {
     if !is_sha256_hex(&id) {
         return Err(ApiError::NotFound(format!("no asset {id}")));

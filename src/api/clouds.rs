@@ -7,17 +7,19 @@
 
 use std::time::Duration;
 
-use axum::extract::{Path, Request, State};
+use axum::extract::{Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
 use serde_json::{Map, Value};
 
+use super::extract::ApiPath;
 use super::jobs::prefer_wait;
+use super::strict_json::{self, StrictJsonError};
 use super::submit::{
-    describe_input, input_bytes, queue_job, read_body, reject_nulls, request_key, respond,
-    store_input, touch_asset,
+    describe_input, queue_job, read_body, reject_nulls, request_key, respond, store_input,
+    touch_asset,
 };
 use super::AppState;
 use crate::clouds::{is_scene_id, SceneRecord, VersionRecord, VersionStatus};
@@ -126,13 +128,11 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     let pipelines = st.jobs.pipelines().clone();
     let canonical = pipelines.params(RENDER, &Value::Object(raw))?;
     let canonical = object(&canonical, "params")?;
-    let (asset, uploaded) = store_input(&st, input).await?;
-    let bytes = input_bytes(&st, &asset, uploaded).await?;
+    let asset = store_input(&st, input).await?;
     let info = describe_input(
         &st,
         RENDER,
         &Value::Object(canonical.clone()),
-        bytes,
         &asset,
         "volume",
     )
@@ -197,7 +197,7 @@ async fn settled(st: &AppState, id: &str) -> Result<SceneRecord, ApiError> {
 /// `GET /v1/clouds/{id}`.
 pub async fn get(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
 ) -> Result<Json<SceneView>, ApiError> {
     Ok(Json(SceneView::from(settled(&st, &id).await?)))
 }
@@ -205,7 +205,7 @@ pub async fn get(
 /// `DELETE /v1/clouds/{id}`: forgets the scene; its blobs go at the next retention sweep.
 pub async fn delete(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
     if !is_scene_id(&id) {
         return Err(ApiError::NotFound(format!("no cloud scene {id}")));
@@ -298,8 +298,10 @@ fn json_body(body: &[u8]) -> Result<Map<String, Value>, ApiError> {
     if body.is_empty() {
         return Ok(Map::new());
     }
-    let v: Value = serde_json::from_slice(body)
-        .map_err(|e| ApiError::bad_request(format!("invalid JSON body: {e}")))?;
+    let v = strict_json::from_slice(body).map_err(|e| match e {
+        StrictJsonError::Syntax(e) => ApiError::bad_request(format!("invalid JSON body: {e}")),
+        StrictJsonError::Duplicate(path) => strict_json::duplicate_problem(path, true),
+    })?;
     object(&v, "body")
 }
 
@@ -330,7 +332,7 @@ async fn read_json(st: &AppState, req: Request) -> Result<Map<String, Value>, Ap
 /// (`width`, `height`, `camera`, `layers`) as a `cloud` job.
 pub async fn render(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
     headers: HeaderMap,
     req: Request,
 ) -> Result<Response, ApiError> {
@@ -494,7 +496,7 @@ fn edit_field(e: ParamError) -> ApiError {
 /// `Prefer: wait` saw it settle).
 pub async fn edit(
     State(st): State<AppState>,
-    Path((id, kind)): Path<(String, String)>,
+    ApiPath((id, kind)): ApiPath<(String, String)>,
     headers: HeaderMap,
     req: Request,
 ) -> Result<Response, ApiError> {

@@ -4,7 +4,7 @@ use std::convert::Infallible;
 use std::time::Duration;
 
 use axum::body::Body;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -13,6 +13,7 @@ use futures_util::stream::{self, Stream};
 use serde::Deserialize;
 
 use super::dto::{JobList, JobView};
+use super::extract::ApiPath;
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::record::is_job_id;
@@ -64,7 +65,7 @@ async fn find(st: &AppState, id: &str) -> Result<JobRecord, ApiError> {
 /// `GET /v1/jobs/{id}`; honours `Prefer: wait=N`.
 pub async fn get(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let rec = find(&st, &id).await?;
@@ -116,7 +117,7 @@ pub async fn list(
 /// `DELETE /v1/jobs/{id}`: cancels a queued or running job.
 pub async fn cancel(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     find(&st, &id).await?;
     match st.jobs.cancel(&id).await {
@@ -131,7 +132,7 @@ pub async fn cancel(
 /// `{status, progress, stage}`; the last event is `done` with the whole job.
 pub async fn events(
     State(st): State<AppState>,
-    Path(id): Path<String>,
+    ApiPath(id): ApiPath<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     find(&st, &id).await?;
     let rx = st
@@ -178,7 +179,7 @@ pub async fn events(
 /// `GET /v1/jobs/{id}/outputs/{name}`: the output's bytes with a strong `ETag` (its SHA-256).
 pub async fn output(
     State(st): State<AppState>,
-    Path((id, name)): Path<(String, String)>,
+    ApiPath((id, name)): ApiPath<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let rec = find(&st, &id).await?;

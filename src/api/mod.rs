@@ -1,15 +1,19 @@
 //! The HTTP API: routes, shared state and the request-metrics middleware. Handlers validate and
 //! translate; the maths happens in the engine behind the job system.
 
+mod admission;
 mod assets;
 mod body_timeout;
 mod clouds;
 mod dto;
+mod extract;
 mod jobs;
+mod strict_json;
 mod submit;
 mod system;
 pub mod web;
 
+pub use admission::{DecodeBudget, DECODE_WAIT};
 pub use submit::{parse_submission, parse_submission_aux, Input};
 
 use std::sync::Arc;
@@ -36,6 +40,8 @@ pub struct AppState {
     pub jobs: Jobs,
     pub clouds: crate::clouds::Scenes,
     pub metrics: Metrics,
+    /// What the up-front input checks of submissions may decode at once (`api::admission`).
+    pub decodes: DecodeBudget,
     /// Cancelled when the server begins shutting down (ends SSE streams, fails readiness).
     pub shutdown: CancellationToken,
 }
@@ -110,6 +116,10 @@ pub fn app(state: AppState) -> Router {
             state.clone(),
             body_timeout::body_timeout,
         ))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            refuse_declared_oversize,
+        ))
         .layer(middleware::from_fn_with_state(state.clone(), authenticate))
         .layer(middleware::from_fn_with_state(state.clone(), track))
         .layer(TraceLayer::new_for_http())
@@ -146,6 +156,37 @@ async fn authenticate(State(st): State<AppState>, req: Request, next: Next) -> R
             "send `Authorization: Bearer <token>` with a configured token".into(),
         )
         .into_response()
+    }
+}
+
+/// A request whose `Content-Length` declares more than `max_body_bytes` is answered `413` at
+/// once, before a byte of its body is read (and the connection is closed, since the body is
+/// never read): the client learns the limit now instead of after uploading up to it, or after
+/// the body timeout. Bodies without a declared length are cut at the limit while they are read
+/// (`DefaultBodyLimit`).
+async fn refuse_declared_oversize(
+    State(st): State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    use axum::http::{header, HeaderValue};
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    let max = st.cfg.max_body_bytes as u64;
+    match declared {
+        Some(n) if n > max => {
+            let mut resp = ApiError::PayloadTooLarge(format!(
+                "the request body declares {n} bytes (Content-Length); the limit is {max} bytes"
+            ))
+            .into_response();
+            resp.headers_mut()
+                .insert(header::CONNECTION, HeaderValue::from_static("close"));
+            resp
+        }
+        _ => next.run(req).await,
     }
 }
 

@@ -17,7 +17,9 @@ use axum::response::Response;
 use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
+use super::admission;
 use super::jobs::{job_response, prefer_wait};
+use super::strict_json::{self, StrictJsonError};
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::{InputRef, SubmitError, Submitted};
@@ -38,12 +40,16 @@ fn empty_object() -> serde_json::Value {
     serde_json::Value::Object(Default::default())
 }
 
-/// The input as received: new bytes to store, or the id of an uploaded asset.
+/// The input as received: new bytes to store, an upload already streamed to the store, or the
+/// id of an uploaded asset.
 pub enum Input {
+    /// Bytes held in memory (only [`parse_submission`] without a store, for the fuzz target).
     Upload {
         bytes: bytes::Bytes,
         filename: Option<String>,
     },
+    /// A multipart part streamed to the store and recorded as an asset while it arrived.
+    Stored(crate::store::assets::AssetRecord),
     Named(String),
 }
 
@@ -78,8 +84,7 @@ pub async fn submit(
         .ok_or_else(|| ApiError::NotFound(format!("no pipeline {pipeline}")))?;
     let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
     let aux_parts = st.jobs.pipelines().aux_parts(pipeline);
-    let (raw_params, input, aux_inputs) =
-        parse_submission_aux(req, part, aux_parts, st.cfg.max_body_bytes).await?;
+    let (raw_params, input, aux_inputs) = read_streamed(&st, req, part, aux_parts).await?;
 
     reject_nulls(&raw_params, "")?;
     let pipelines = st.jobs.pipelines().clone();
@@ -100,7 +105,7 @@ pub async fn submit(
         }
     }
 
-    let (asset, bytes) = store_input(&st, input).await?;
+    let asset = store_input(&st, input).await?;
     let key = request_key(pipeline, &asset.id, &params);
 
     // An identical request already queued, running or done: no decode, no new job.
@@ -108,9 +113,11 @@ pub async fn submit(
         return respond(&st, rec, wait).await;
     }
 
-    // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed job.
-    let bytes = input_bytes(&st, &asset, bytes).await?;
-    describe_input(&st, pipeline, &params, bytes, &asset, part).await?;
+    // Admission before work: a full queue is refused before the input is decoded.
+    admission::ensure_queue_room(&st).await?;
+    // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed
+    // job; the decode runs within the decode budget.
+    describe_input(&st, pipeline, &params, &asset, part).await?;
     touch_asset(&st, &asset).await?;
 
     let input = InputRef {
@@ -132,38 +139,53 @@ async fn submit_with_aux(
     params: serde_json::Value,
     wait: Option<std::time::Duration>,
 ) -> Result<Response, ApiError> {
-    let (asset, bytes) = store_input(st, input).await?;
+    let asset = store_input(st, input).await?;
     let mut key_input = asset.id.clone();
-    let mut aux = Vec::with_capacity(aux_inputs.len());
-    let mut aux_bytes = Vec::with_capacity(aux_inputs.len());
+    let mut aux_assets = Vec::with_capacity(aux_inputs.len());
     for (name, inp) in aux_inputs {
-        let (rec, b) = store_input(st, inp)
+        let rec = store_input(st, inp)
             .await
             .map_err(|e| rename_asset_field(e, name))?;
         key_input.push_str(&format!("+{name}:{}", rec.id));
-        let b = input_bytes(st, &rec, b).await?;
-        touch_asset(st, &rec).await?;
-        aux.push(crate::jobs::AuxInput {
-            name: name.to_string(),
-            blob: rec.id,
-        });
-        aux_bytes.push((name.to_string(), b.to_vec()));
+        aux_assets.push((name, rec));
     }
     let key = request_key(pipeline, &key_input, &params);
     if let Some(rec) = st.jobs.find_by_key(&key).await? {
         return respond(st, rec, wait).await;
     }
-    let bytes = input_bytes(st, &asset, bytes).await?;
+    admission::ensure_queue_room(st).await?;
+    // The auxiliary bytes are held twice (as read and as the owned copy the check takes).
+    let size = aux_assets.iter().fold(asset.size, |n, (_, r)| {
+        n.saturating_add(r.size.saturating_mul(2))
+    });
+    let reservation = reserve_decode(st, pipeline, size, true).await?;
+    let bytes = st.jobs.store().read_blob(&asset.id).await?;
+    let mut aux_bytes = Vec::with_capacity(aux_assets.len());
+    for (name, rec) in &aux_assets {
+        let b = st.jobs.store().read_blob(&rec.id).await?;
+        aux_bytes.push((name.to_string(), b.to_vec()));
+    }
     let p = params.clone();
     let filename = asset.filename.clone();
     let pipelines = st.jobs.pipelines().clone();
+    // The reservation moves into the decode: it ends when the decode does, even if the client
+    // goes away and this request is dropped meanwhile.
     tokio::task::spawn_blocking(move || {
+        let _reservation = reservation;
         pipelines.check_with_aux(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes)
     })
     .await
     .map_err(blocking_err)?
     .map_err(|(which, e)| ApiError::from_input(e, which.unwrap_or(part)))?;
     touch_asset(st, &asset).await?;
+    let mut aux = Vec::with_capacity(aux_assets.len());
+    for (name, rec) in aux_assets {
+        touch_asset(st, &rec).await?;
+        aux.push(crate::jobs::AuxInput {
+            name: name.to_string(),
+            blob: rec.id,
+        });
+    }
     let input = InputRef {
         asset: asset.id,
         filename: asset.filename,
@@ -172,13 +194,14 @@ async fn submit_with_aux(
     submit_job(st, pipeline, input, params, key, wait).await
 }
 
-/// An unknown asset named for an auxiliary part is that part's field (`ortho_asset`).
+/// An unknown asset named for an auxiliary part is named by that part's field (`ortho_asset`).
 fn rename_asset_field(e: ApiError, name: &str) -> ApiError {
     match e {
-        ApiError::InvalidInput { detail, .. } => ApiError::InvalidInput {
-            detail: detail.replace("no asset", &format!("{name}_asset: no asset")),
-            field: Some(format!("{name}_asset")),
-        },
+        ApiError::NotFound(detail) => ApiError::NotFound(detail.replacen(
+            "asset: no asset",
+            &format!("{name}_asset: no asset"),
+            1,
+        )),
         other => other,
     }
 }
@@ -217,14 +240,28 @@ pub(super) async fn queue_job(
     }
 }
 
-/// Reads a submission body: multipart (a `params` part and the `part` file part) or JSON naming
-/// an uploaded asset.
+/// Reads a submission body: multipart (a `params` part and the `part` file part, streamed to
+/// the store) or JSON naming an uploaded asset.
 pub(super) async fn read_body(
     st: &AppState,
     req: Request,
     part: &'static str,
 ) -> Result<(serde_json::Value, Input), ApiError> {
-    parse_submission(req, part, st.cfg.max_body_bytes).await
+    read_streamed(st, req, part, &[])
+        .await
+        .map(|(p, i, _)| (p, i))
+}
+
+/// [`parse_submission_aux`] with the file parts streamed to the store as they arrive (as
+/// `POST /v1/assets` does): a request never holds an upload whole.
+#[allow(clippy::type_complexity)]
+async fn read_streamed(
+    st: &AppState,
+    req: Request,
+    part: &'static str,
+    aux: &'static [&'static str],
+) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
+    parse_body(req, part, aux, st.cfg.max_body_bytes, Some(st.jobs.store())).await
 }
 
 /// Parses a job submission: a multipart body (`params` JSON part, the `part` file part) or a
@@ -249,6 +286,19 @@ pub async fn parse_submission_aux(
     aux: &'static [&'static str],
     max_body: usize,
 ) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
+    parse_body(req, part, aux, max_body, None).await
+}
+
+/// [`parse_submission_aux`]; with a `sink`, file parts stream into it ([`Input::Stored`]),
+/// else they are read into memory ([`Input::Upload`]).
+#[allow(clippy::type_complexity)]
+async fn parse_body(
+    req: Request,
+    part: &'static str,
+    aux: &'static [&'static str],
+    max_body: usize,
+    sink: Option<&crate::store::Store>,
+) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
     let ctype = req
         .headers()
         .get(header::CONTENT_TYPE)
@@ -256,7 +306,7 @@ pub async fn parse_submission_aux(
         .unwrap_or("")
         .to_ascii_lowercase();
     if ctype.starts_with("multipart/form-data") {
-        read_multipart(req, part, aux).await
+        read_multipart(req, part, aux, sink.map(|st| (st, max_body as u64))).await
     } else if ctype.starts_with("application/json") {
         read_json(req, aux, max_body).await
     } else {
@@ -268,56 +318,61 @@ pub async fn parse_submission_aux(
     }
 }
 
-/// Stores an upload as an asset (content-addressed) so a retry or a later job can name it, or
-/// looks up a named asset. Returns the record and the bytes when they were uploaded.
+/// The asset of an input: an upload stored as one (content-addressed, so a retry or a later job
+/// can name it), or a named asset looked up.
 pub(super) async fn store_input(
     st: &AppState,
     input: Input,
-) -> Result<(crate::store::assets::AssetRecord, Option<bytes::Bytes>), ApiError> {
+) -> Result<crate::store::assets::AssetRecord, ApiError> {
     let store = st.jobs.store();
     Ok(match input {
-        Input::Upload { bytes, filename } => {
-            let (rec, _) = store.put_asset(bytes.clone(), filename.as_deref()).await?;
-            (rec, Some(bytes))
-        }
+        Input::Upload { bytes, filename } => store.put_asset(bytes, filename.as_deref()).await?.0,
+        Input::Stored(rec) => rec,
+        // A well-formed id naming no asset: 404, like `GET /v1/assets/{id}` (the request is
+        // well-formed; the resource it names is missing).
         Input::Named(id) => match store.get_asset(&id).await {
-            Some(rec) => (rec, None),
+            Some(rec) => rec,
             None => {
-                return Err(ApiError::InvalidInput {
-                    detail: format!("no asset {id:?}; upload it with POST /v1/assets"),
-                    field: Some("asset".into()),
-                })
+                return Err(ApiError::NotFound(format!(
+                    "asset: no asset {id:?}; upload it with POST /v1/assets"
+                )))
             }
         },
     })
 }
 
-/// The input's bytes: the upload itself, or the named asset read from the store.
-pub(super) async fn input_bytes(
+/// Reserves what checking `input_bytes` of input for `pipeline` may take from the decode budget
+/// (see `admission`): 429 with `Retry-After` when it stays in use.
+async fn reserve_decode(
     st: &AppState,
-    asset: &crate::store::assets::AssetRecord,
-    uploaded: Option<bytes::Bytes>,
-) -> Result<bytes::Bytes, ApiError> {
-    Ok(match uploaded {
-        Some(b) => b,
-        None => st.jobs.store().read_blob(&asset.id).await?,
-    })
+    pipeline: &str,
+    input_bytes: u64,
+    with_aux: bool,
+) -> Result<admission::Reservation, ApiError> {
+    let cost = st.jobs.pipelines().decode_cost(pipeline, with_aux);
+    st.decodes.reserve(input_bytes.saturating_add(cost)).await
 }
 
-/// Decodes the input on the blocking pool, mapping a corrupt, unsupported or oversize file to its
-/// 4xx (named after the input `part`), and describes it (see `PipelineSet::describe_input`).
+/// Decodes the stored input on the blocking pool within the decode budget, mapping a corrupt,
+/// unsupported or oversize file to its 4xx (named after the input `part`), and describes it (see
+/// `PipelineSet::describe_input`). The input's bytes are read from the store only once the
+/// budget is reserved.
 pub(super) async fn describe_input(
     st: &AppState,
     pipeline: &'static str,
     params: &serde_json::Value,
-    bytes: bytes::Bytes,
     asset: &crate::store::assets::AssetRecord,
     part: &'static str,
 ) -> Result<serde_json::Value, ApiError> {
+    let reservation = reserve_decode(st, pipeline, asset.size, false).await?;
+    let bytes = st.jobs.store().read_blob(&asset.id).await?;
     let p = params.clone();
     let filename = asset.filename.clone();
     let pipelines = st.jobs.pipelines().clone();
+    // The reservation moves into the decode: it ends when the decode does, even if the client
+    // goes away and this request is dropped meanwhile.
     tokio::task::spawn_blocking(move || {
+        let _reservation = reservation;
         pipelines.describe_input(pipeline, &p, &bytes, filename.as_deref())
     })
     .await
@@ -354,11 +409,47 @@ fn multipart_err(e: axum::extract::multipart::MultipartError) -> ApiError {
     }
 }
 
+/// A file part: streamed into the store and recorded as an asset when there is a `sink` (store,
+/// most bytes), else read into memory. An empty part is a 400 naming it.
+async fn file_part(
+    field: axum::extract::multipart::Field<'_>,
+    name: &'static str,
+    sink: Option<(&crate::store::Store, u64)>,
+) -> Result<Input, ApiError> {
+    use axum::http::StatusCode;
+    use futures_util::StreamExt;
+    let filename = field.file_name().map(sanitize_filename);
+    let empty = || ApiError::bad_field(name, format!("the {name} part is empty"));
+    let Some((store, max)) = sink else {
+        let bytes = field.bytes().await.map_err(multipart_err)?;
+        if bytes.is_empty() {
+            return Err(empty());
+        }
+        return Ok(Input::Upload { bytes, filename });
+    };
+    let chunks = field.map(|r| {
+        r.map_err(|e| {
+            if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                crate::store::StoreError::TooLarge { max }
+            } else {
+                crate::store::StoreError::Upload(e.body_text())
+            }
+        })
+    });
+    let (sha, size) = store.put_blob_stream(chunks, max).await?;
+    if size == 0 {
+        return Err(empty());
+    }
+    let (rec, _) = store.record_asset(&sha, size, filename.as_deref()).await?;
+    Ok(Input::Stored(rec))
+}
+
 #[allow(clippy::type_complexity)]
 async fn read_multipart(
     req: Request,
     part: &'static str,
     aux: &'static [&'static str],
+    sink: Option<(&crate::store::Store, u64)>,
 ) -> Result<(serde_json::Value, Input, Vec<(&'static str, Input)>), ApiError> {
     let mut mp = Multipart::from_request(req, &()).await.map_err(|e| {
         ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
@@ -374,8 +465,11 @@ async fn read_multipart(
             if text.trim_ascii().is_empty() {
                 continue;
             }
-            let v: serde_json::Value = serde_json::from_slice(&text).map_err(|e| {
-                ApiError::bad_field("params", format!("the params part is not valid JSON: {e}"))
+            let v = strict_json::from_slice(&text).map_err(|e| match e {
+                StrictJsonError::Syntax(e) => {
+                    ApiError::bad_field("params", format!("the params part is not valid JSON: {e}"))
+                }
+                StrictJsonError::Duplicate(path) => strict_json::duplicate_problem(path, true),
             })?;
             if !v.is_object() {
                 return Err(ApiError::bad_field(
@@ -385,28 +479,21 @@ async fn read_multipart(
             }
             params = Some(v);
         } else if name == part {
-            let filename = field.file_name().map(sanitize_filename);
-            let bytes = field.bytes().await.map_err(multipart_err)?;
-            if bytes.is_empty() {
+            if input.is_some() {
                 return Err(ApiError::bad_field(
                     part,
-                    format!("the {part} part is empty"),
+                    format!("the {part} part is given twice"),
                 ));
             }
-            input = Some(Input::Upload { bytes, filename });
+            input = Some(file_part(field, part, sink).await?);
         } else if let Some(&a) = aux.iter().find(|a| **a == name) {
-            let filename = field.file_name().map(sanitize_filename);
-            let bytes = field.bytes().await.map_err(multipart_err)?;
-            if bytes.is_empty() {
-                return Err(ApiError::bad_field(a, format!("the {a} part is empty")));
-            }
             if aux_inputs.iter().any(|(n, _)| *n == a) {
                 return Err(ApiError::bad_field(
                     a,
                     format!("the {a} part is given twice"),
                 ));
             }
-            aux_inputs.push((a, Input::Upload { bytes, filename }));
+            aux_inputs.push((a, file_part(field, a, sink).await?));
         } else {
             let extra: String = aux.iter().map(|a| format!(", `{a}`")).collect();
             return Err(ApiError::bad_field(
@@ -429,7 +516,14 @@ async fn read_json(
     let body = axum::body::to_bytes(req.into_body(), max_body)
         .await
         .map_err(|_| ApiError::PayloadTooLarge("request body too large".into()))?;
-    let j: JsonSubmit = serde_json::from_slice(&body)
+    let v = strict_json::from_slice(&body).map_err(|e| match e {
+        StrictJsonError::Syntax(e) => ApiError::bad_request(format!("invalid JSON body: {e}")),
+        StrictJsonError::Duplicate(path) => match path.strip_prefix("params.") {
+            Some(p) => strict_json::duplicate_problem(p.to_string(), true),
+            None => strict_json::duplicate_problem(path, false),
+        },
+    })?;
+    let j: JsonSubmit = serde_json::from_value(v)
         .map_err(|e| ApiError::bad_request(format!("invalid JSON body: {e}")))?;
     if !j.params.is_object() {
         return Err(ApiError::bad_field(

@@ -8,7 +8,7 @@
 
 use std::fmt::Write as _;
 
-use axum::extract::Path;
+use super::extract::ApiPath;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 
@@ -75,12 +75,12 @@ pub async fn index() -> Result<Response, ApiError> {
 }
 
 /// `GET /web/{file}`: the page's scripts and style sheet.
-pub async fn asset(Path(name): Path<String>) -> Result<Response, ApiError> {
+pub async fn asset(ApiPath(name): ApiPath<String>) -> Result<Response, ApiError> {
     file(&name)
 }
 
 /// `GET /v1/examples/{name}`: a small synthetic input.
-pub async fn example(Path(name): Path<String>) -> Result<Response, ApiError> {
+pub async fn example(ApiPath(name): ApiPath<String>) -> Result<Response, ApiError> {
     let (media, bytes) = match name.as_str() {
         "dem.asc" => ("text/plain; charset=utf-8", example_dem().into_bytes()),
         "mesh.obj" => ("model/obj", example_mesh().into_bytes()),

@@ -324,8 +324,9 @@ async fn assets_upload_once_and_jobs_name_them() {
         .send()
         .await
         .unwrap();
-    let p = problem(resp, 422, "invalid-input").await;
-    assert_eq!(p["field"], "asset");
+    // A well-formed id of no asset: 404 naming the field in its detail.
+    let p = problem(resp, 404, "not-found").await;
+    assert!(p["detail"].as_str().unwrap().starts_with("asset: no asset"), "{p}");
     let resp = s
         .client
         .get(s.url("/v1/assets/..%2F..%2Fetc"))

@@ -170,6 +170,9 @@ impl PipelineSet for WithSleepy {
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
         self.0.aux_parts(name)
     }
+    fn decode_cost(&self, name: &str, with_aux: bool) -> u64 {
+        self.0.decode_cost(name, with_aux)
+    }
     fn check_with_aux(
         &self,
         name: &str,

@@ -2,12 +2,14 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod admission;
 mod api;
 mod clouds;
 mod common;
 mod conformance;
 mod dust;
 mod faults;
+mod hardening;
 mod load_balancer;
 mod openapi;
 mod overload;

@@ -356,8 +356,14 @@ async fn ortho_over_http_equals_the_cli_and_the_asset_form() {
         .send()
         .await
         .unwrap();
-    let body = problem(r, 422, "invalid-input").await;
-    assert_eq!(body["field"], "ortho_asset");
+    let body = problem(r, 404, "not-found").await;
+    assert!(
+        body["detail"]
+            .as_str()
+            .unwrap()
+            .starts_with("ortho_asset: no asset"),
+        "{body}"
+    );
 }
 
 /// A plain PNG and a JPEG are stretched over the DEM; they run.

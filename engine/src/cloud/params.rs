@@ -107,7 +107,8 @@ pub struct Params {
     /// Extra layers to write (`direct.png`, `ambient.png`, `layers.bin`). Default none.
     pub layers: Vec<Layer>,
     /// World box `[[min], [max]]` of the volume; null = SPEC §3's default (unit cube scaled to
-    /// the grid's aspect, base at Y = 0). Each min < max, finite.
+    /// the grid's aspect, base at Y = 0). Each min < max, finite, within ±10⁹, each side ≥ 10⁻⁶
+    /// and ≥ 10⁻⁶ of its axis' largest |coordinate| ([`crate::geom::sanity::check_box`]).
     pub bounds: Option<[[f64; 3]; 2]>,
     /// Grid size `[nx, ny, nz]` for raw float32 input (each ≥ 1, product within the input cell
     /// limit); ignored by self-describing formats. Default null.
@@ -149,17 +150,8 @@ impl Params {
             }
         };
         if let Some([lo, hi]) = w.bounds {
-            for k in 0..3 {
-                if !(lo[k].is_finite() && hi[k].is_finite() && lo[k] < hi[k])
-                    || lo[k].abs() > 1e9
-                    || hi[k].abs() > 1e9
-                {
-                    return Err(ParamError::new(
-                        "bounds",
-                        "must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], finite, min < max",
-                    ));
-                }
-            }
+            // [[xmin, ymin, zmin], [xmax, ymax, zmax]] within the engine's coordinate range.
+            crate::geom::sanity::check_box(lo, hi).map_err(|e| ParamError::new("bounds", e))?;
         }
         if let Some(d) = w.dims {
             let cells = d

@@ -2,6 +2,7 @@
 
 pub mod heightfield;
 pub mod mesh;
+pub mod sanity;
 pub mod volume;
 
 pub use heightfield::{Dem, GeoRef};

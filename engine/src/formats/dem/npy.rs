@@ -38,9 +38,9 @@ pub(super) fn decode(bytes: &[u8], opts: &DemOptions) -> Result<Dem, InputError>
             .try_fold(1u64, |acc, &d| acc.checked_mul(d));
         if product.is_none() {
             return Err(InputError::TooLarge {
-                what: "NPY elements",
+                what: "DEM cells (the NPY shape's elements)",
                 actual: u64::MAX,
-                max: u64::MAX,
+                max: opts.max_cells,
             });
         }
         if dims.len() == 2 {

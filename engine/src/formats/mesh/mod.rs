@@ -13,10 +13,11 @@
 //!   decoded, OBJ from a counting pass over the text. Polygons are fanned, so a PLY face or an
 //!   OBJ `f` line with n corners counts n − 2 triangles; the caps also hold while parsing.
 //! - **Validation, the same for all formats** ([`finish`]): non-finite positions are
-//!   [`InputError::Corrupt`] naming the vertex; indices out of range are `Corrupt`; a mesh
-//!   without triangles is [`InputError::Unusable`]. Normals are normalised; if any is non-finite
-//!   or zero the whole normal set is dropped (consumers compute their own). Non-finite UVs drop
-//!   the UV set. Degenerate (zero-area) triangles are *kept*: they are harmless for rasterising
+//!   [`InputError::Corrupt`] naming the vertex; finite positions beyond ±10⁹ m
+//!   ([`crate::geom::sanity::MAX_COORDINATE`]) are [`InputError::Unusable`]; indices out of
+//!   range are `Corrupt`; a mesh without triangles is [`InputError::Unusable`]. Normals are
+//!   normalised; if any is non-finite or zero the whole normal set is dropped (consumers compute
+//!   their own). Non-finite UVs drop the UV set. Degenerate (zero-area) triangles are *kept*: they are harmless for rasterising
 //!   and ray casting, and dropping them would shift part ranges for no gain.
 //! - **Safety net.** The third-party parsers (`gltf`, `tobj`, `stl_io`, `ply-rs-bw`) run inside
 //!   [`std::panic::catch_unwind`]; a panic on hostile bytes becomes `Corrupt`.
@@ -503,6 +504,10 @@ fn finish(mut mesh: Mesh, format: &'static str, opts: &MeshOptions) -> Result<Me
                 mesh.positions[i]
             ),
         });
+    }
+    // Finite but absurd (|x| > 10⁹ m): squares and products overflow f32 in the pipelines.
+    if let Some((_, detail)) = crate::geom::sanity::first_bad_position(&mesh.positions) {
+        return Err(InputError::Unusable(format!("the {format} mesh: {detail}")));
     }
     let n = mesh.positions.len();
     if let Some(t) = mesh

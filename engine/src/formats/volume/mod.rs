@@ -191,11 +191,7 @@ fn check_options(opts: &VolumeOptions) -> Result<(), InputError> {
         }
     }
     if let Some((lo, hi)) = opts.bounds {
-        if (0..3).any(|k| !(lo[k].is_finite() && hi[k].is_finite() && lo[k] < hi[k])) {
-            return Err(
-                ParamError::new("bounds", "must be finite with min < max on every axis").into(),
-            );
-        }
+        crate::geom::sanity::check_box(lo, hi).map_err(|e| ParamError::new("bounds", e))?;
     }
     Ok(())
 }
