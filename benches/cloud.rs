@@ -381,8 +381,48 @@ fn bench_ambient_edit(c: &mut Criterion) {
     g.finish();
 }
 
+/// Multiple scattering (issue 24, `cloud::multiple`): the whole render of a 128³ cumulus at
+/// 512² in multiple mode (the issue's target: ≤ 1 s), its single-mode twin, the preparation
+/// alone (sweep + source-term solve), and the 256³ cumulus at 1024². The cumulus at κ chosen
+/// from the volume (the default).
+fn bench_multiple(c: &mut Criterion) {
+    use phenomena_engine::cloud::Scattering;
+    let mut g = c.benchmark_group("cloud");
+    g.sample_size(10).measurement_time(Duration::from_secs(20));
+    let single = CloudState::default();
+    let multiple = CloudState {
+        scattering: Scattering::Multiple,
+        ..CloudState::default()
+    };
+    let cu = cumulus(128);
+    let (single, multiple) = (single.resolved(&cu), multiple.resolved(&cu));
+    let v512 = view(512, 512);
+    g.bench_function("multiple_prepare_128", |b| {
+        b.iter(|| Prepared::lit(&cu, &multiple, None, &NoControl).unwrap())
+    });
+    g.bench_function("multiple_render_128_512", |b| {
+        b.iter(|| render_full(&cu, &multiple, &v512))
+    });
+    g.bench_function("single_render_128_512", |b| {
+        b.iter(|| render_full(&cu, &single, &v512))
+    });
+    drop(cu);
+    let cu = cumulus(256);
+    let multiple = CloudState {
+        scattering: Scattering::Multiple,
+        ..CloudState::default()
+    }
+    .resolved(&cu);
+    let v1024 = view(1024, 1024);
+    g.bench_function("multiple_render_256_1024", |b| {
+        b.iter(|| render_full(&cu, &multiple, &v1024))
+    });
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    bench_multiple,
     bench_render,
     bench_edits,
     bench_ambient,

@@ -27,7 +27,7 @@ const PIPELINES = {
     schema: "CloudParams",
     input: "density volume (.npy, NRRD, .vdb)",
     example: "volume.npy",
-    images: [["render.png", "render"], ["direct.png", "direct light"], ["ambient.png", "ambient light"]],
+    images: [["render.png", "render"], ["direct.png", "direct light (single scattering)"], ["multiple.png", "multiple scattering"], ["ambient.png", "ambient light"]],
   },
   dust: {
     schema: "DustParams",

@@ -69,6 +69,12 @@ export function initEditor(panel, spec) {
   const azIn = el("input", { type: "number", id: "set-sun-az", min: 0, max: 360, step: 1 });
   const elIn = el("input", { type: "number", id: "set-sun-el", min: -90, max: 90, step: 1 });
   const sunIn = el("input", { type: "color", id: "set-sun-color", value: "#fff8f0" });
+  // The scattering mode and albedo (issue 24): multiple scattering brightens and softens thick
+  // clouds; the paint and drag tools work in both modes.
+  const modeIn = el("select", { id: "set-scattering" },
+    el("option", { value: "single" }, "single (the paper)"),
+    el("option", { value: "multiple" }, "multiple"));
+  const albedoIn = el("input", { type: "number", id: "set-albedo", min: 0, max: 1, step: 0.01, value: 1 });
   const applyBtn = el("button", { type: "button", id: "set-apply", onclick: applySettings }, "Apply settings");
   const error = (m) => { status.textContent = m; status.classList.add("error"); };
   const note = (m) => { status.textContent = m; status.classList.remove("error"); };
@@ -116,6 +122,9 @@ export function initEditor(panel, spec) {
       elIn.value = elIn.dataset.shown = String(Math.round(elv));
     }
     if (Array.isArray(state.sun_color)) sunIn.value = sunIn.dataset.shown = hex(state.sun_color);
+    modeIn.value = modeIn.dataset.shown = state.scattering || "single";
+    const a = typeof state.albedo === "number" ? state.albedo : 1;
+    albedoIn.value = albedoIn.dataset.shown = String(a);
   }
   function applySettings() {
     if (!st.scene || st.busy) return;
@@ -129,7 +138,9 @@ export function initEditor(panel, spec) {
       body.sun_elevation_deg = Number(elIn.value);
     }
     if (sunIn.value !== before.sun) body.sun_color = sunIn.value;
-    if (!Object.keys(body).length) return note("Nothing to apply: change κ, the sun or its colour first.");
+    if (modeIn.value !== modeIn.dataset.shown) body.scattering = modeIn.value;
+    if (albedoIn.value !== albedoIn.dataset.shown && albedoIn.value !== "") body.albedo = Number(albedoIn.value);
+    if (!Object.keys(body).length) return note("Nothing to apply: change κ, the sun, its colour, the scattering or the albedo first.");
     edit("set", body);
   }
 
@@ -468,7 +479,9 @@ export function initEditor(panel, spec) {
           el("label", { for: "set-kappa" }, "Extinction κ "), kappaIn, kappaHow, el("br"),
           el("label", { for: "set-sun-az" }, "Sun azimuth (°) "), azIn, " ",
           el("label", { for: "set-sun-el" }, "elevation (°) "), elIn, el("br"),
-          el("label", { for: "set-sun-color" }, "Sun colour "), sunIn, " ", applyBtn)),
+          el("label", { for: "set-sun-color" }, "Sun colour "), sunIn, el("br"),
+          el("label", { for: "set-scattering" }, "Scattering "), modeIn, " ",
+          el("label", { for: "set-albedo" }, "albedo "), albedoIn, " ", applyBtn)),
       el("div", { class: "area-more" },
         el("h3", {}, "Versions (", count, ")"),
         el("div", { class: "toolbar" }, undoBtn, redoBtn),

@@ -35,7 +35,7 @@ const VIEW_KEYS: &[&str] = &["width", "height", "camera", "layers", "seed"];
 /// Parameters that tell the decoder how to read the volume, fixed at upload.
 const INPUT_KEYS: &[&str] = &["bounds", "dims"];
 /// The edit modes (SPEC §3.1–3.3), as they appear in the route.
-/// `set` gives κ, the sun direction or the sun colour directly.
+/// `set` gives κ, the sun direction, the sun colour, the scattering mode or the albedo directly.
 const EDIT_KINDS: &[&str] = &["sun-color", "ambient", "sun-direction", "set"];
 /// The render layer a scene render always adds, and its output: the linear layers a later
 /// sun-colour edit at that view reads (`phenomena_engine::cloud::layers`).
@@ -373,8 +373,10 @@ fn render_params(
     let mut params = state_of(v);
     params.extend(scene.input.clone());
     params.extend(body);
+    let multiple = params.get("scattering").and_then(Value::as_str) == Some("multiple");
     let layers = match params.remove("layers") {
         None | Some(Value::Bool(false)) => Value::Array(vec![]),
+        Some(Value::Bool(true)) if multiple => serde_json::json!(["direct", "multiple", "ambient"]),
         Some(Value::Bool(true)) => serde_json::json!(["direct", "ambient"]),
         Some(other) => other,
     };
@@ -445,6 +447,7 @@ async fn layers_of(
     for layers in [
         Value::Bool(false),
         serde_json::json!(["direct"]),
+        serde_json::json!(["multiple"]),
         serde_json::json!(["ambient"]),
         Value::Bool(true),
     ] {

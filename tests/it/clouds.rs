@@ -530,4 +530,89 @@ async fn scenes_survive_a_restart() {
     assert!(!render_of(&s, &job).await.is_empty());
 }
 
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn multiple_scattering_over_http() {
+    let spec = spec();
+    let s = start(|_| {}).await;
+    // One shot: the three layers on request, state.json records the mode and the albedo.
+    let params = json!({"width": 64, "height": 48, "kappa": 40, "scattering": "multiple",
+                        "albedo": 0.95, "layers": true});
+    let r = s.submit("cloud", "volume", params, blob_npy(), "blob.npy").await;
+    let job = s
+        .wait_done(r.json::<Value>().await.unwrap()["id"].as_str().unwrap())
+        .await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let url_of = |name: &str| {
+        job["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|o| o["name"] == name)
+            .unwrap_or_else(|| panic!("no {name} in {job}"))["url"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let state: Value = serde_json::from_slice(&bytes(&s, &url_of("state.json")).await).unwrap();
+    assert_eq!(state["scattering"], "multiple", "{state}");
+    assert_eq!(state["albedo"], json!(0.95), "{state}");
+    let direct = bytes(&s, &url_of("direct.png")).await;
+    let multiple = bytes(&s, &url_of("multiple.png")).await;
+    assert!(!multiple.is_empty() && multiple != direct);
+    assert!(!bytes(&s, &url_of("ambient.png")).await.is_empty());
+
+    // Bad values are 422s naming the field.
+    for (bad, field) in [
+        (json!({"scattering": "triple"}), "scattering"),
+        (json!({"albedo": 1.5}), "albedo"),
+    ] {
+        let r = s.submit("cloud", "volume", bad, blob_npy(), "blob.npy").await;
+        assert_eq!(problem(r, 422, "invalid-parameter").await["field"], field);
+    }
+
+    // A scene switched to multiple scattering by the `set` edit; the sun-colour edit works in
+    // that mode, and a render with `layers: true` carries multiple.png.
+    let r = create(&s, json!({"kappa": 40, "background": "#000000"})).await;
+    assert_eq!(r.status(), 201);
+    let scene = checked(&spec, "post", "/v1/clouds", r).await;
+    let id = scene["id"].as_str().unwrap().to_string();
+    assert_eq!(scene["versions"][0]["state"]["scattering"], "single");
+    let v = edit(&s, &spec, &id, "set", with_view(json!({"scattering": "multiple"}))).await;
+    assert_eq!(v["status"], "ready", "{v}");
+    assert_eq!(v["state"]["scattering"], "multiple");
+    let (cx, cy) = (VIEW.0 as i64 / 2, VIEW.1 as i64 / 2);
+    let v = edit(
+        &s,
+        &spec,
+        &id,
+        "sun-color",
+        with_view(json!({"strokes": [{"color": "#ff4020", "pixels": block(cx, cy)}]})),
+    )
+    .await;
+    assert_eq!(v["status"], "ready", "{v}");
+    assert_eq!(v["state"]["scattering"], "multiple");
+    let sun: Vec<f64> = v["state"]["sun_color"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    assert!(sun[0] > 2.0 * sun[2], "the sun should turn red: {sun:?}");
+    let mut body = view();
+    body["layers"] = json!(true);
+    let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), body).await;
+    let job = checked(&spec, "post", "/v1/clouds/{id}/renders", r).await;
+    output_blob(&job, "multiple.png");
+    output_blob(&job, "layers.bin");
+    let r = post_json(
+        &s,
+        &format!("/v1/clouds/{id}/edits/set"),
+        with_view(json!({"albedo": 2})),
+    )
+    .await;
+    let p = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    assert!(p["field"].as_str().unwrap().ends_with("albedo"), "{p}");
+}
+
 }

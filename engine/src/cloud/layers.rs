@@ -1,7 +1,9 @@
 //! The linear layers of a render (SPEC §3.1): per pixel Ī (the direct light for a unit sun
-//! colour), A (the ambient part, linear RGB) and α. The image is `I = I_l·Ī + A` composited
-//! with α, so a render at a camera answers every sun colour: the sun-colour edit solves for I_l
-//! from the painted pixels' Ī and A, and the new version's image is the same layers recoloured.
+//! colour), M (the multiple-scattering light for a unit sun, [`super::multiple`]; empty in
+//! single mode), A (the ambient part, linear RGB) and α. The image is `I = I_l·(Ī + M) + A`
+//! composited with α, so a render at a camera answers every sun colour: the sun-colour edit
+//! solves for I_l from the painted pixels' Ī + M and A, and the new version's image is the same
+//! layers recoloured.
 //!
 //! `layers.bin` stores them beside a render so that a later sun-colour edit at the same camera
 //! reads them instead of marching (the "when the render at that camera exists"). The
@@ -14,11 +16,13 @@
 //! u32 width and height; per row u32 `x0 ≤ x1 ≤ width`, the span of stored pixels (outside it Ī,
 //! A and α are 0: sky); then the rows' spans of records of five f32 (Ī, A.r, A.g, A.b, α). Sky
 //! rows and margins cost 8 bytes a row, a covered pixel 20 bytes; lossless, so a cached edit
-//! gives the same bytes as a marched one.
+//! gives the same bytes as a marched one. Layers with a multiple-scattering part are written as
+//! `PHLAY2\0\0`, the same with records of six f32 (Ī, M, A.r, A.g, A.b, α).
 
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::multiple::Scattering;
 use super::params::View;
 use super::state::CloudState;
 use crate::params::CameraSpec;
@@ -32,6 +36,8 @@ pub struct Layers {
     pub height: u32,
     /// Ī per pixel.
     pub direct: Vec<f32>,
+    /// M per pixel (multiple scattering for a unit sun); empty in single mode (M = 0).
+    pub multiple: Vec<f32>,
     /// A per pixel, linear RGB.
     pub ambient: Vec<[f32; 3]>,
     /// 1 − g(T) per pixel.
@@ -43,8 +49,10 @@ pub struct Layers {
 pub enum Show {
     /// I_l·Ī + A: the render.
     All,
-    /// I_l·Ī only.
+    /// I_l·Ī only (single scattering).
     Direct,
+    /// I_l·M only (multiple scattering).
+    Multiple,
     /// A only.
     Ambient,
 }
@@ -55,10 +63,13 @@ impl Layers {
     pub fn radiance(&self, i: usize, sun: [f32; 3], show: Show) -> [f32; 3] {
         let d = self.direct[i];
         let a = self.ambient[i];
-        std::array::from_fn(|q| match show {
-            Show::All => sun[q] * d + a[q],
-            Show::Direct => sun[q] * d,
-            Show::Ambient => a[q],
+        let m = self.multiple.get(i).copied();
+        std::array::from_fn(|q| match (show, m) {
+            (Show::All, None) => sun[q] * d + a[q],
+            (Show::All, Some(m)) => sun[q] * (d + m) + a[q],
+            (Show::Direct, _) => sun[q] * d,
+            (Show::Multiple, m) => sun[q] * m.unwrap_or(0.0),
+            (Show::Ambient, _) => a[q],
         })
     }
 
@@ -115,6 +126,8 @@ pub const LAYERS_FILE: &str = "layers.bin";
 
 /// The blob's magic.
 const MAGIC: &[u8; 8] = b"PHLAY1\0\0";
+/// The magic of layers with a multiple-scattering part.
+const MAGIC_MS: &[u8; 8] = b"PHLAY2\0\0";
 
 /// What a render's layers depend on besides the volume and ambient field.
 #[derive(Serialize)]
@@ -128,6 +141,16 @@ struct Identity<'a> {
     ambient_scale: f64,
     anisotropy: f64,
     step: f64,
+    /// Left out in single mode with albedo 1, so that the identity of such layers is what it
+    /// was before the multiple mode existed.
+    #[serde(skip_serializing_if = "Scattering::is_single")]
+    scattering: Scattering,
+    #[serde(skip_serializing_if = "is_one")]
+    albedo: f64,
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
 }
 
 /// The identity of the layers of `state` rendered at `view`: compact JSON (the same values
@@ -143,27 +166,34 @@ pub fn identity(view: &View, state: &CloudState) -> String {
         ambient_scale: state.ambient_scale,
         anisotropy: state.anisotropy,
         step: state.step,
+        scattering: state.scattering,
+        albedo: state.albedo,
     };
     // Plain numbers and a camera spec: serialisation cannot fail.
     serde_json::to_string(&id).unwrap_or_default()
 }
 
 impl Layers {
-    /// Pixel `i`'s record: Ī, A, α.
+    /// Pixel `i`'s record: Ī, A, α (and M after Ī when the layers have it).
     #[inline]
-    fn record(&self, i: usize) -> [f32; 5] {
+    fn record(&self, i: usize) -> ([f32; 6], usize) {
         let a = self.ambient[i];
-        [self.direct[i], a[0], a[1], a[2], self.alpha[i]]
+        match self.multiple.get(i) {
+            Some(m) => ([self.direct[i], *m, a[0], a[1], a[2], self.alpha[i]], 6),
+            None => ([self.direct[i], a[0], a[1], a[2], self.alpha[i], 0.0], 5),
+        }
     }
 
     /// `layers.bin` (see the module doc) with the identity `id`. Allocates the blob: 8 bytes a
     /// row plus 20 a stored pixel.
     pub fn to_bytes(&self, id: &str) -> Vec<u8> {
         let (w, h) = (self.width as usize, self.height as usize);
+        let ms = !self.multiple.is_empty();
+        let rec = if ms { 24 } else { 20 };
         let spans: Vec<(usize, usize)> = (0..h)
             .map(|y| {
-                let row = |x: usize| self.record(y * w + x);
-                let lit = |x: &usize| row(*x) != [0.0; 5];
+                let row = |x: usize| self.record(y * w + x).0;
+                let lit = |x: &usize| row(*x) != [0.0; 6];
                 match (0..w).find(lit) {
                     Some(x0) => (x0, (0..w).rev().find(lit).map_or(x0, |x| x + 1)),
                     None => (0, 0),
@@ -171,8 +201,8 @@ impl Layers {
             })
             .collect();
         let stored: usize = spans.iter().map(|(a, b)| b - a).sum();
-        let mut out = Vec::with_capacity(20 + id.len() + 8 * h + 20 * stored);
-        out.extend_from_slice(MAGIC);
+        let mut out = Vec::with_capacity(20 + id.len() + 8 * h + rec * stored);
+        out.extend_from_slice(if ms { MAGIC_MS } else { MAGIC });
         out.extend_from_slice(&(id.len() as u32).to_le_bytes());
         out.extend_from_slice(id.as_bytes());
         out.extend_from_slice(&self.width.to_le_bytes());
@@ -183,7 +213,8 @@ impl Layers {
         }
         for (y, (a, b)) in spans.iter().enumerate() {
             for x in *a..*b {
-                for v in self.record(y * w + x) {
+                let (r, n) = self.record(y * w + x);
+                for v in &r[..n] {
                     out.extend_from_slice(&v.to_le_bytes());
                 }
             }
@@ -209,9 +240,12 @@ impl Layers {
             at = end;
             Ok(s)
         };
-        if take(8)? != MAGIC {
-            return Err(corrupt("missing the PHLAY1 header".into()));
-        }
+        let ms = match take(8)? {
+            m if m == MAGIC => false,
+            m if m == MAGIC_MS => true,
+            _ => return Err(corrupt("missing the PHLAY1/PHLAY2 header".into())),
+        };
+        let rec = if ms { 24 } else { 20 };
         let u32_at = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
         let n = u32_at(take(4)?) as usize;
         let id = std::str::from_utf8(take(n)?)
@@ -241,19 +275,28 @@ impl Layers {
             width,
             height,
             direct: vec![0.0; w * h],
+            multiple: if ms { vec![0.0; w * h] } else { vec![] },
             ambient: vec![[0.0; 3]; w * h],
             alpha: vec![0.0; w * h],
         };
         for (y, (a, b)) in spans.into_iter().enumerate() {
-            let recs = take(20 * (b - a))?;
-            for (x, r) in (a..b).zip(recs.chunks_exact(20)) {
-                let v: [f32; 5] = std::array::from_fn(|k| {
-                    f32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]])
-                });
+            let recs = take(rec * (b - a))?;
+            for (x, r) in (a..b).zip(recs.chunks_exact(rec)) {
+                let mut v = [0f32; 6];
+                for (k, o) in v.iter_mut().enumerate().take(rec / 4) {
+                    *o = f32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
+                }
+                let v = &v[..rec / 4];
                 if v.iter().any(|x| !x.is_finite()) {
                     return Err(corrupt(format!("pixel ({x}, {y}) holds {v:?}")));
                 }
                 let i = y * w + x;
+                let v = if ms {
+                    layers.multiple[i] = v[1];
+                    [v[0], v[2], v[3], v[4], v[5]]
+                } else {
+                    [v[0], v[1], v[2], v[3], v[4]]
+                };
                 layers.direct[i] = v[0];
                 layers.ambient[i] = [v[1], v[2], v[3]];
                 layers.alpha[i] = v[4];
@@ -281,6 +324,7 @@ mod tests {
             width: w,
             height: h,
             direct: vec![0.0; n],
+            multiple: vec![],
             ambient: vec![[0.0; 3]; n],
             alpha: vec![0.0; n],
         };
@@ -306,5 +350,14 @@ mod tests {
         let row1 = 8 + 4 + 8 + 8 + 8 + 4;
         bad[row1..row1 + 4].copy_from_slice(&9u32.to_le_bytes());
         assert!(Layers::from_bytes(&bad, 1000).is_err());
+        // With a multiple-scattering layer: PHLAY2, six floats a pixel, same round trip.
+        l.multiple = vec![0.0; n];
+        l.multiple[8] = 0.75;
+        l.multiple[7] = 0.5; // a pixel lit by multiple scattering only
+        let b = l.to_bytes("{}");
+        assert_eq!(&b[..8], b"PHLAY2\0\0");
+        assert_eq!(b.len(), 8 + 4 + 2 + 8 + 8 * 3 + 24 * 4);
+        assert_eq!(Layers::from_bytes(&b, 1000).unwrap().1, l);
+        assert!(Layers::from_bytes(&b[..b.len() - 4], 1000).is_err());
     }
 }

@@ -28,6 +28,7 @@ use super::fastexp::exp_neg;
 use super::grid::GridFrame;
 pub use super::layers::{Layers, Show};
 use super::light::{sweep, SunLight, SweepOut};
+use super::multiple::{solve, Medium, MsField, MsOptions};
 use super::skip::{DensityRows, EmptySpace};
 use super::state::{AmbientField, CloudState};
 use crate::geom::Volume;
@@ -48,6 +49,29 @@ enum Sources {
     Uniform(Vec<[f32; 2]>),
     /// `(ρ, ρ·T_sun, ρ·ambient_scale·I_m)`: a per-voxel ambient field.
     Field(Vec<[f32; 5]>),
+    /// `(ρ, ρ·T_sun, ρ·J)`: uniform ambient, multiple scattering ([`super::multiple`]).
+    UniformMs(Vec<[f32; 3]>),
+    /// `(ρ, ρ·T_sun, ρ·J, ρ·ambient_scale·I_m)`: a field and multiple scattering.
+    FieldMs(Vec<[f32; 6]>),
+}
+
+/// Index of ρ·J in the multiple-scattering sources.
+const MS: usize = 2;
+
+/// How the march weighs the multiple-scattering channel ([`super::multiple`]'s similarity
+/// scaling): emission α*·J per unit *scaled* extinction κ(1 − αg)ρ, seen through the scaled
+/// view transmittance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MsMarch {
+    /// α* = α(1 − g)/(1 − αg).
+    pub albedo: f32,
+    /// κ(1 − αg).
+    pub kappa: f32,
+    /// Whether κ(1 − αg) differs from κ (g ≠ 0 and α ≠ 0): a second transmittance is kept.
+    pub scaled: bool,
+    /// Orders swept and the tail ratio (for the report).
+    pub orders: usize,
+    pub ratio: f64,
 }
 
 /// Everything a ray needs, prepared once per render: the sources per cell of the *padded* grid
@@ -70,6 +94,10 @@ pub struct Prepared {
     step: f64,
     sun: [f64; 3],
     anisotropy: f64,
+    /// Single-scattering albedo α (multiplies the sun term).
+    albedo: f32,
+    /// The multiple-scattering weights when the sources carry ρ·J.
+    ms: Option<MsMarch>,
 }
 
 /// One pixel's march: Ī (direct light for a unit sun, phase included), A (ambient, linear RGB)
@@ -77,8 +105,53 @@ pub struct Prepared {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PixelSample {
     pub direct: f32,
+    /// The multiple-scattering part for a unit sun (0 in single mode).
+    pub multiple: f32,
     pub ambient: [f32; 3],
     pub transmittance: f32,
+}
+
+/// The medium of `state` at extinction `kappa`.
+fn medium_of(state: &CloudState, kappa: f64) -> Medium {
+    Medium {
+        kappa,
+        albedo: state.albedo,
+        anisotropy: state.anisotropy,
+    }
+}
+
+/// The march's weights for a solved field.
+fn ms_march(medium: &Medium, f: &MsField) -> MsMarch {
+    let ext = medium.extinction_scale();
+    MsMarch {
+        albedo: medium.scaled_albedo() as f32,
+        kappa: (medium.kappa * ext) as f32,
+        scaled: ext != 1.0,
+        orders: f.orders,
+        ratio: f.ratio,
+    }
+}
+
+/// Writes ρ·J into channel [`MS`] of every voxel's padded cell (then the border again).
+fn put_ms<const N: usize>(src: &mut [[f32; N]], pad: [usize; 3], f: &MsField) {
+    let dims = f.dims;
+    let (px, pxy) = (pad[0], pad[0] * pad[1]);
+    src.par_chunks_mut(pxy)
+        .enumerate()
+        .skip(1)
+        .take(dims[2])
+        .for_each(|(pz, slab)| {
+            let z = pz - 1;
+            for y in 0..dims[1] {
+                let row = &mut slab[px * (y + 1) + 1..][..dims[0]];
+                for (x, c) in row.iter_mut().enumerate() {
+                    if c[0] > 0.0 {
+                        c[MS] = c[0] * f.at_voxel(x, y, z);
+                    }
+                }
+            }
+        });
+    fill_border(src, pad);
 }
 
 /// Copies `cell(voxel index)` into the padded layout (border cells repeat the face voxels).
@@ -214,16 +287,64 @@ impl Prepared {
         let dims = volume.dims;
         let (rho, tsun) = (&volume.density, &light.transmittance);
         let scale = state.ambient_scale as f32;
-        let sources = match field_of(volume, ambient) {
-            Some(f) => Sources::Field(padded(dims, |i| field_source(rho[i], tsun[i], f[i], scale))),
-            None => Sources::Uniform(padded(dims, |i| [rho[i], rho[i] * tsun[i]])),
+        let field = field_of(volume, ambient);
+        if state.scattering.is_single() {
+            let sources = match field {
+                Some(f) => {
+                    Sources::Field(padded(dims, |i| field_source(rho[i], tsun[i], f[i], scale)))
+                }
+                None => Sources::Uniform(padded(dims, |i| [rho[i], rho[i] * tsun[i]])),
+            };
+            return Self::with_sources(
+                volume,
+                &DensityRows::of(volume),
+                sources,
+                state,
+                light.kappa,
+                None,
+            );
+        }
+        let g = GridFrame::of(volume);
+        let medium = medium_of(state, light.kappa);
+        let voxel = |x: usize, y: usize, z: usize| {
+            let i = g.index(x, y, z);
+            (rho[i], rho[i] * tsun[i])
         };
+        // Cannot be canceled: no control here.
+        let Ok(msf) = solve(
+            dims,
+            g.h,
+            &medium,
+            &MsOptions::default(),
+            voxel,
+            &crate::NoControl,
+        ) else {
+            unreachable!("NoControl never cancels")
+        };
+        let pad = dims.map(|n| n + 2);
+        let sources = match field {
+            Some(f) => {
+                let mut src = padded(dims, |i| {
+                    let c = field_source(rho[i], tsun[i], f[i], scale);
+                    [c[0], c[1], 0.0, c[2], c[3], c[4]]
+                });
+                put_ms(&mut src, pad, &msf);
+                Sources::FieldMs(src)
+            }
+            None => {
+                let mut src = padded(dims, |i| [rho[i], rho[i] * tsun[i], 0.0]);
+                put_ms(&mut src, pad, &msf);
+                Sources::UniformMs(src)
+            }
+        };
+        let ms = ms_march(&medium, &msf);
         Self::with_sources(
             volume,
             &DensityRows::of(volume),
             sources,
             state,
             light.kappa,
+            Some(ms),
         )
     }
 
@@ -244,6 +365,9 @@ impl Prepared {
         let kappa = state.kappa_for(volume);
         let (dir, rho) = (state.sun_direction, &volume.density);
         let scale = state.ambient_scale as f32;
+        if !state.scattering.is_single() {
+            return Self::lit_multiple(volume, state, ambient, &rows, kappa, ctl);
+        }
         let sources = match field_of(volume, ambient) {
             Some(f) => {
                 let mut src = vec![[0f32; 5]; cells];
@@ -272,7 +396,99 @@ impl Prepared {
                 Sources::Uniform(src)
             }
         };
-        Ok(Self::with_sources(volume, &rows, sources, state, kappa))
+        Ok(Self::with_sources(
+            volume, &rows, sources, state, kappa, None,
+        ))
+    }
+
+    /// [`Prepared::lit`] in multiple mode: the fused sweep writes `(ρ, ρ·T_sun, 0, …)`, the
+    /// source term J is solved from those cells ([`super::multiple::solve`]) and ρ·J written
+    /// into the third channel.
+    fn lit_multiple(
+        volume: &Volume,
+        state: &CloudState,
+        ambient: Option<&AmbientField>,
+        rows: &DensityRows,
+        kappa: f64,
+        ctl: &dyn Control,
+    ) -> Result<Self, Canceled> {
+        let dims = volume.dims;
+        let pad = dims.map(|n| n + 2);
+        let cells = pad[0] * pad[1] * pad[2];
+        let (dir, rho) = (state.sun_direction, &volume.density);
+        let scale = state.ambient_scale as f32;
+        let medium = medium_of(state, kappa);
+        let h = GridFrame::of(volume).h;
+        let opts = MsOptions::default();
+        let (px, pxy) = (pad[0], pad[0] * pad[1]);
+        let at = move |x: usize, y: usize, z: usize| (x + 1) + px * (y + 1) + pxy * (z + 1);
+        let (sources, msf) = match field_of(volume, ambient) {
+            Some(f) => {
+                let mut src = vec![[0f32; 6]; cells];
+                let out = SweepOut {
+                    cells: &mut src,
+                    dims: pad,
+                    border: 1,
+                };
+                let put = |c: &mut [f32; 6], i: usize, t: f32| {
+                    let s = field_source(rho[i], t, f[i], scale);
+                    *c = [s[0], s[1], 0.0, s[2], s[3], s[4]];
+                };
+                sweep(volume, dir, kappa, Some(rows), out, put, ctl)?;
+                ctl.progress("multiple", 0.1);
+                let msf = solve(
+                    dims,
+                    h,
+                    &medium,
+                    &opts,
+                    |x, y, z| {
+                        let c = &src[at(x, y, z)];
+                        (c[0], c[1])
+                    },
+                    ctl,
+                )?;
+                put_ms(&mut src, pad, &msf);
+                (Sources::FieldMs(src), msf)
+            }
+            None => {
+                let mut src = vec![[0f32; 3]; cells];
+                let out = SweepOut {
+                    cells: &mut src,
+                    dims: pad,
+                    border: 1,
+                };
+                let put = |c: &mut [f32; 3], i: usize, t: f32| *c = [rho[i], rho[i] * t, 0.0];
+                sweep(volume, dir, kappa, Some(rows), out, put, ctl)?;
+                ctl.progress("multiple", 0.1);
+                let msf = solve(
+                    dims,
+                    h,
+                    &medium,
+                    &opts,
+                    |x, y, z| {
+                        let c = &src[at(x, y, z)];
+                        (c[0], c[1])
+                    },
+                    ctl,
+                )?;
+                put_ms(&mut src, pad, &msf);
+                (Sources::UniformMs(src), msf)
+            }
+        };
+        let ms = ms_march(&medium, &msf);
+        Ok(Self::with_sources(
+            volume,
+            rows,
+            sources,
+            state,
+            kappa,
+            Some(ms),
+        ))
+    }
+
+    /// The multiple-scattering weights of this preparation (None in single mode).
+    pub fn multiple(&self) -> Option<MsMarch> {
+        self.ms
     }
 
     fn with_sources(
@@ -281,6 +497,7 @@ impl Prepared {
         sources: Sources,
         state: &CloudState,
         kappa: f64,
+        ms: Option<MsMarch>,
     ) -> Self {
         let frame = GridFrame::of(volume);
         let empty = EmptySpace::build(rows);
@@ -303,6 +520,8 @@ impl Prepared {
             step: state.step,
             sun: state.sun_direction,
             anisotropy: state.anisotropy,
+            albedo: state.albedo as f32,
+            ms,
         }
     }
 
@@ -355,19 +574,40 @@ impl Prepared {
         };
         let span = first..last;
         let dtf = dt as f32;
+        let uniform = |c: &[f32], wgt: f32, amb: &mut [f32; 3]| {
+            for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
+                *m += wgt * c[0] * u;
+            }
+        };
         let (direct, ambient, g) = match &self.sources {
-            Sources::Uniform(s) => self.integrate(s, &ray, span, dtf, |c, wgt, amb| {
-                for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
-                    *m += wgt * c[0] * u;
-                }
-            }),
+            Sources::Uniform(s) => {
+                self.integrate(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb))
+            }
             Sources::Field(s) => self.integrate(s, &ray, span, dtf, |c, wgt, amb| {
                 for (m, x) in amb.iter_mut().zip(&c[2..5]) {
                     *m += wgt * x;
                 }
             }),
+            Sources::UniformMs(s) => {
+                let (dr, ms, amb, g) =
+                    self.integrate_ms(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb));
+                out.multiple = ms;
+                (dr, amb, g)
+            }
+            Sources::FieldMs(s) => {
+                let (dr, ms, amb, g) = self.integrate_ms(s, &ray, span, dtf, |c, wgt, amb| {
+                    for (m, x) in amb.iter_mut().zip(&c[3..6]) {
+                        *m += wgt * x;
+                    }
+                });
+                out.multiple = ms;
+                (dr, amb, g)
+            }
         };
         out.direct = direct * self.phase(d);
+        if self.albedo != 1.0 {
+            out.direct *= self.albedo;
+        }
         out.ambient = ambient;
         out.transmittance = g;
         out
@@ -434,6 +674,80 @@ impl Prepared {
         (direct, amb, g)
     }
 
+    /// [`Prepared::integrate`] with the multiple-scattering channel ρ·J ([`MS`]): returns (Ī
+    /// before the phase, the multiple part for a unit sun, A, g). With the similarity scaling
+    /// (αg ≠ 0) the multiple part is seen through its own, scaled view transmittance, and the
+    /// march stops when both transmittances are below [`MIN_TRANSMITTANCE`].
+    #[inline]
+    fn integrate_ms<const N: usize>(
+        &self,
+        src: &[[f32; N]],
+        ray: &GridRay,
+        span: std::ops::Range<usize>,
+        dt: f32,
+        ambient: impl Fn(&[f32; N], f32, &mut [f32; 3]),
+    ) -> (f32, f32, [f32; 3], f32) {
+        let Some(ms) = self.ms else {
+            return (0.0, 0.0, [0.0; 3], 1.0);
+        };
+        let (px, pxy) = (self.pad[0], self.pad[0] * self.pad[1]);
+        let mut g = 1.0f32;
+        let mut gs = 1.0f32;
+        let mut direct = 0.0f32;
+        let mut multiple = 0.0f32;
+        let mut amb = [0.0f32; 3];
+        let (mut i, n) = (span.start, span.end);
+        while i < n {
+            let p = ray.at(i);
+            let c = [p[0] as usize, p[1] as usize, p[2] as usize];
+            let dist = self.empty.at(c[0], c[1], c[2]);
+            if dist > 0 {
+                let r = usize::from(dist) - 1;
+                let b = c.map(|v| v / super::skip::BLOCK);
+                let bs = super::skip::BLOCK as f32;
+                let lo = b.map(|v| (v as f32 - r as f32) * bs);
+                let hi = b.map(|v| (v + r + 1) as f32 * bs);
+                i = ray.leap(i, lo, hi);
+                continue;
+            }
+            let fx = p[0] - c[0] as f32;
+            let fy = p[1] - c[1] as f32;
+            let fz = p[2] - c[2] as f32;
+            let i0 = c[0] + px * c[1] + pxy * c[2];
+            let lerp = |a: &[f32; N], b: &[f32; N], t: f32| -> [f32; N] {
+                std::array::from_fn(|q| a[q] + t * (b[q] - a[q]))
+            };
+            let row = |j: usize| -> [f32; N] {
+                let r = &src[j..j + 2];
+                lerp(&r[0], &r[1], fx)
+            };
+            let y0 = lerp(&row(i0), &row(i0 + px), fy);
+            let y1 = lerp(&row(i0 + pxy), &row(i0 + pxy + px), fy);
+            let s = lerp(&y0, &y1, fz);
+            let rho = s[0];
+            if rho > 0.0 {
+                let a = exp_neg(-self.kappa * rho * dt);
+                let wgt = g * (1.0 - a) / rho;
+                direct += wgt * s[1];
+                ambient(&s, wgt, &mut amb);
+                g *= a;
+                if ms.scaled {
+                    let a_s = exp_neg(-ms.kappa * rho * dt);
+                    multiple += gs * (1.0 - a_s) / rho * s[MS];
+                    gs *= a_s;
+                } else {
+                    multiple += wgt * s[MS];
+                    gs = g;
+                }
+                if g < MIN_TRANSMITTANCE && gs < MIN_TRANSMITTANCE {
+                    break;
+                }
+            }
+            i += 1;
+        }
+        (direct, multiple * ms.albedo, amb, g)
+    }
+
     /// Marches the ray through the centre of pixel (`x`, `y`) of a `width × height` view.
     pub fn march_pixel(
         &self,
@@ -458,15 +772,22 @@ pub fn render_layers(
 ) -> Result<Layers, Canceled> {
     let (w, h) = (width as usize, height as usize);
     let rg = camera.ray_gen(width, height);
+    let ms = prepared.ms.is_some();
     let mut direct = vec![0f32; w * h];
+    let mut multiple = vec![0f32; if ms { w * h } else { 0 }];
     let mut ambient = vec![[0f32; 3]; w * h];
     let mut alpha = vec![0f32; w * h];
+    // In single mode `multiple` is empty: its chunks are then empty too (one per band).
+    let ms_chunk = if ms { w * TILE } else { 1 };
+    let mut none = vec![0f32; if ms { 0 } else { h.div_ceil(TILE) }];
+    let ms_rows = if ms { &mut multiple } else { &mut none };
     direct
         .par_chunks_mut(w * TILE)
+        .zip(ms_rows.par_chunks_mut(ms_chunk))
         .zip(ambient.par_chunks_mut(w * TILE))
         .zip(alpha.par_chunks_mut(w * TILE))
         .enumerate()
-        .for_each(|(band, ((dr, ar), al))| {
+        .for_each(|(band, (((dr, mr), ar), al))| {
             if ctl.is_canceled() {
                 return;
             }
@@ -478,6 +799,9 @@ pub fn render_layers(
                         let s = prepared.march(rg.eye, rg.dir(x as f64 + 0.5, y as f64 + 0.5));
                         let i = r * w + x;
                         dr[i] = s.direct;
+                        if ms {
+                            mr[i] = s.multiple;
+                        }
                         ar[i] = s.ambient;
                         al[i] = 1.0 - s.transmittance;
                     }
@@ -489,6 +813,7 @@ pub fn render_layers(
         width,
         height,
         direct,
+        multiple,
         ambient,
         alpha,
     })

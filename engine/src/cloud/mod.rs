@@ -17,6 +17,7 @@ pub mod layers;
 pub mod light;
 pub mod march;
 pub mod multigrid;
+pub mod multiple;
 pub mod params;
 pub mod procedural;
 pub mod run;
@@ -24,6 +25,7 @@ pub mod skip;
 pub mod state;
 
 pub use edit::{apply_edit, edit_outputs, edit_outputs_with, Edit, EditError, EditOutcome};
+pub use multiple::Scattering;
 pub use params::{Layer, Params, View};
 pub use run::run;
 pub use state::{AmbientField, CloudState};

@@ -24,8 +24,10 @@ pub const DEFAULT_SIZE: (u32, u32) = (800, 600);
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Layer {
-    /// `direct.png`: I_l·Ī.
+    /// `direct.png`: I_l·Ī (single scattering).
     Direct,
+    /// `multiple.png`: I_l·M, the multiple-scattering layer (zero in single mode).
+    Multiple,
     /// `ambient.png`: A.
     Ambient,
     /// `layers.bin`: the linear Ī, A and α of every pixel ([`super::layers`]), which a later
@@ -33,8 +35,8 @@ pub enum Layer {
     Linear,
 }
 
-/// Wire form of `layers`: `true` = both images (`direct`, `ambient`), `false` = none, or a
-/// list of names.
+/// Wire form of `layers`: `true` = the images (`direct`, `ambient`, and `multiple` in multiple
+/// mode), `false` = none, or a list of names.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
 pub(crate) enum WireLayers {
@@ -104,7 +106,8 @@ pub struct Params {
     /// The rendering parameters (κ, sun, ambient, …), flattened at the top level.
     #[serde(flatten)]
     pub state: CloudState,
-    /// Extra layers to write (`direct.png`, `ambient.png`, `layers.bin`). Default none.
+    /// Extra layers to write (`direct.png`, `multiple.png`, `ambient.png`, `layers.bin`).
+    /// Default none.
     pub layers: Vec<Layer>,
     /// World box `[[min], [max]]` of the volume; null = SPEC §3's default (unit cube scaled to
     /// the grid's aspect, base at Y = 0). Each min < max, finite, within ±10⁹, each side ≥ 10⁻⁶
@@ -138,10 +141,18 @@ impl Params {
         let view = View::from_wire(w.width, w.height, w.camera, limits)?;
         let layers = match w.layers {
             None | Some(WireLayers::All(false)) => vec![],
-            Some(WireLayers::All(true)) => vec![Layer::Direct, Layer::Ambient],
+            Some(WireLayers::All(true)) if state.scattering.is_single() => {
+                vec![Layer::Direct, Layer::Ambient]
+            }
+            Some(WireLayers::All(true)) => vec![Layer::Direct, Layer::Multiple, Layer::Ambient],
             Some(WireLayers::List(l)) => {
                 let mut out = vec![];
-                for x in [Layer::Direct, Layer::Ambient, Layer::Linear] {
+                for x in [
+                    Layer::Direct,
+                    Layer::Multiple,
+                    Layer::Ambient,
+                    Layer::Linear,
+                ] {
                     if l.contains(&x) {
                         out.push(x);
                     }
@@ -214,6 +225,7 @@ mod tests {
                    "bounds": [[0, 0, 0], [1, 2, 1]], "dims": [4, 5, 6],
                    "camera": {"eye": [3, 1, 2], "target": [0, 0.5, 0]}}),
             json!({"layers": ["ambient"], "sun_azimuth_deg": 10, "sun_elevation_deg": 60}),
+            json!({"layers": true, "scattering": "multiple", "albedo": 0.9}),
         ] {
             let p = Params::from_json(&v, &l).unwrap();
             let c = serde_json::to_value(&p).unwrap();

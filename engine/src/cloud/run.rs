@@ -1,6 +1,8 @@
 //! The one-shot `cloud` pipeline (SPEC §3): volume → sun transmittance sweep
 //! ([`super::light`], fused into [`Prepared::lit`]) → camera-ray march ([`super::march`]) → `render.png` (RGBA, sRGB),
-//! `state.json`, and `direct.png`/`ambient.png`/`layers.bin` on request.
+//! `state.json`, and `direct.png`/`multiple.png`/`ambient.png`/`layers.bin` on request. In
+//! multiple mode the preparation also solves the multiple-scattering source term
+//! ([`super::multiple`]).
 
 use super::edit::layers_bin;
 use super::layers::identity;
@@ -62,6 +64,7 @@ pub fn run(
         // Layers are for compositing: straight alpha, no background.
         let (name, show) = match l {
             Layer::Direct => ("direct.png", Show::Direct),
+            Layer::Multiple => ("multiple.png", Show::Multiple),
             Layer::Ambient => ("ambient.png", Show::Ambient),
             Layer::Linear => {
                 let id = identity(&params.view(), &state);

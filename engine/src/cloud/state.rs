@@ -8,6 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::kappa::{self, KappaChoice};
+use super::multiple::Scattering;
 use crate::geom::Volume;
 use crate::params::{parse_hex_color, range};
 use crate::render::terrain::sun_direction as sun_from_angles;
@@ -49,6 +50,23 @@ pub struct CloudState {
     /// `cloud::renderer_matches_a_brute_force_integrator`) it stays within 1 % RMS, and it
     /// halves the samples of the former default 0.5.
     pub step: f64,
+    /// `single` (paper Eq. 1: the sun scattered once, plus the ambient) or `multiple` (plus
+    /// the light scattered more than once, [`super::multiple`]). Default `single`: the look,
+    /// speed and stored versions of existing scenes stay as they were, and a multiple-scattering
+    /// render of the same state is up to several times brighter (its sun colour means
+    /// something else); choose `multiple` for thick, bright clouds.
+    #[serde(default)]
+    pub scattering: Scattering,
+    /// Single-scattering albedo α = σ_s/σ_t, 0–1: the share of extinction that is scattering
+    /// (the rest is absorbed). Scales the sun term and the multiple-scattering term, not the
+    /// painted ambient. Default 1 (cloud droplets absorb almost nothing in the visible; the
+    /// paper's model).
+    #[serde(default = "default_albedo")]
+    pub albedo: f64,
+}
+
+fn default_albedo() -> f64 {
+    1.0
 }
 
 impl Default for CloudState {
@@ -63,6 +81,8 @@ impl Default for CloudState {
             anisotropy: 0.0,
             background: None,
             step: 1.0,
+            scattering: Scattering::Single,
+            albedo: 1.0,
         }
     }
 }
@@ -82,6 +102,8 @@ pub(crate) struct WireState {
     pub anisotropy: Option<f64>,
     pub background: Option<String>,
     pub step: Option<f64>,
+    pub scattering: Option<Scattering>,
+    pub albedo: Option<f64>,
 }
 
 /// The wire names [`CloudState::from_json`] accepts (the one-shot pipeline splits its
@@ -98,6 +120,8 @@ pub(crate) const STATE_FIELDS: &[&str] = &[
     "anisotropy",
     "background",
     "step",
+    "scattering",
+    "albedo",
 ];
 
 fn color3(field: &str, v: Option<[f64; 3]>, d: [f64; 3]) -> Result<[f64; 3], ParamError> {
@@ -189,6 +213,8 @@ impl CloudState {
             anisotropy: range("anisotropy", w.anisotropy, d.anisotropy, -0.99, 0.99)?,
             background,
             step: range("step", w.step, d.step, 0.1, 4.0)?,
+            scattering: w.scattering.unwrap_or_default(),
+            albedo: range("albedo", w.albedo, d.albedo, 0.0, 1.0)?,
         })
     }
 
@@ -322,6 +348,8 @@ mod tests {
             (json!({"anisotropy": 1.0}), "anisotropy"),
             (json!({"background": "red"}), "background"),
             (json!({"sun_azimuth_deg": 10}), "sun_elevation_deg"),
+            (json!({"albedo": 1.5}), "albedo"),
+            (json!({"scattering": "double"}), "scattering"),
         ] {
             assert_eq!(CloudState::from_json(&v).unwrap_err().field, field, "{v}");
         }

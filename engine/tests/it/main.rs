@@ -4,6 +4,7 @@
 
 mod cloud;
 mod cloud_edit;
+mod cloud_multiple;
 mod cloud_pipeline;
 mod cloud_wild;
 mod descriptor;

@@ -4,8 +4,17 @@
 //! - [`sun_color`]: paint → the least-squares sun colour I_l (§3.1, Eq. 6 generalised).
 //! - [`ambient`]: paint → pinned voxels → a propagated per-voxel ambient field (§3.2).
 //! - [`sun_direction`]: drag a shadow from P' to Q' → a new sun direction (§3.3).
-//! - `set` ([`SetEdit`]): κ, the sun direction or the sun colour given directly (not a mode of
-//!   the paper: the way out when κ or the sun leaves nothing lit to paint on).
+//! - `set` ([`SetEdit`]): κ, the sun direction, the sun colour, the scattering mode or the
+//!   albedo given directly (not a mode of the paper: the way out when κ or the sun leaves
+//!   nothing lit to paint on, and the switch between single and multiple scattering).
+//!
+//! In multiple mode (issue 24, [`crate::cloud::multiple`]) the three modes of the paper work as
+//! follows: the sun-colour least squares uses Ī + M (single plus multiple scattering, both per
+//! unit sun: radiance stays linear in I_l); the ambient field is added on top of both, and its
+//! propagation keeps the sun transmittance as the guide (the multiply scattered light is smooth
+//! and carries no edges to guide by); the shadow drag is geometry (P, Q, R by voxel walks) and
+//! is unchanged — after it Q lies in R's shadow, so its direct light drops, and the multiple
+//! part, which comes from the whole lit cloud, drops less: shadows are softer.
 //!
 //! Every edit carries the view it was made in (image size and camera, the same wire shape as
 //! the pipeline's), and pixel coordinates are `[x, y]` integers from the top-left, checked to
@@ -19,6 +28,7 @@ use serde::Deserialize;
 
 use super::layers::{identity, Layers, LAYERS_FILE};
 use super::light::SunLight;
+use super::multiple::Scattering;
 use super::params::View;
 use super::run::{render, render_png, state_json};
 use super::state::{AmbientField, CloudState};
@@ -78,6 +88,10 @@ pub struct SetEdit {
     pub sun_direction: Option<[f64; 3]>,
     /// New sun colour, linear RGB, each 0–100.
     pub sun_color: Option<[f64; 3]>,
+    /// New render mode (issue 24).
+    pub scattering: Option<Scattering>,
+    /// New single-scattering albedo, 0–1.
+    pub albedo: Option<f64>,
 }
 
 /// An edit of a cloud scene version.
@@ -191,6 +205,8 @@ struct WireSet {
     sun_azimuth_deg: Option<f64>,
     sun_elevation_deg: Option<f64>,
     sun_color: Option<WireColor>,
+    scattering: Option<Scattering>,
+    albedo: Option<f64>,
 }
 
 fn pixel_inside(field: &str, p: [u32; 2], view: &View) -> Result<(), ParamError> {
@@ -347,11 +363,20 @@ impl Edit {
                         Some(c)
                     }
                 };
-                if kappa.is_none() && sun_direction.is_none() && sun_color.is_none() {
+                let albedo = match w.albedo {
+                    Some(a) => Some(crate::params::range("albedo", Some(a), a, 0.0, 1.0)?),
+                    None => None,
+                };
+                if kappa.is_none()
+                    && sun_direction.is_none()
+                    && sun_color.is_none()
+                    && w.scattering.is_none()
+                    && albedo.is_none()
+                {
                     return Err(ParamError::new(
                         "kappa",
                         "give at least one of kappa, sun_direction (or sun_azimuth_deg and \
-                         sun_elevation_deg), sun_color",
+                         sun_elevation_deg), sun_color, scattering, albedo",
                     ));
                 }
                 Ok(Edit::Set(SetEdit {
@@ -359,6 +384,8 @@ impl Edit {
                     kappa,
                     sun_direction,
                     sun_color,
+                    scattering: w.scattering,
+                    albedo,
                 }))
             }
             other => Err(ParamError::new(
@@ -432,6 +459,8 @@ pub fn apply_edit(
                 },
                 sun_direction: e.sun_direction.unwrap_or(base.sun_direction),
                 sun_color: e.sun_color.unwrap_or(base.sun_color),
+                scattering: e.scattering.unwrap_or(base.scattering),
+                albedo: e.albedo.unwrap_or(base.albedo),
                 ..base.clone()
             },
             ambient: None,

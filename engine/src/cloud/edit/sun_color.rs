@@ -3,7 +3,9 @@
 //! The user paints pixels k with colours I_user(k) on a render. The cloud's radiance is linear in
 //! the sun colour, I(k,λ) = I_l(λ)·Ī(k) + A(k,λ), so the least-squares sun colour is
 //! `I_l(λ) = Σ_k Ī(k)(I_target(k,λ) − A(k,λ)) / Σ_k Ī(k)²` — the paper's Eq. 6 when there is one
-//! colour and no ambient. Only the painted pixels' rays are marched — or, when the render of
+//! colour and no ambient. In multiple mode Ī is the sum of the single- and multiple-scattering
+//! parts for a unit sun (both are linear in I_l: the source term J is solved per unit sun), so
+//! the same formula holds unchanged. Only the painted pixels' rays are marched — or, when the render of
 //! the base version at the edit's view exists, its layers (`layers.bin`,
 //! [`crate::cloud::layers`]) are read and nothing is marched.
 //!
@@ -58,6 +60,7 @@ pub fn samples_from_layers(layers: &Layers, edit: &SunColorEdit) -> Vec<([f32; 3
             let i = p[1] as usize * w + p[0] as usize;
             let sample = PixelSample {
                 direct: *layers.direct.get(i)?,
+                multiple: layers.multiple.get(i).copied().unwrap_or(0.0),
                 ambient: *layers.ambient.get(i)?,
                 transmittance: 1.0 - *layers.alpha.get(i)?,
             };
@@ -90,7 +93,8 @@ pub fn solve(
     let mut covered_sq = 0f64;
     for (c, s) in samples {
         let alpha = f64::from(1.0 - s.transmittance);
-        let d = f64::from(s.direct);
+        // Single and multiple scattering are both linear in I_l: Ī + M per unit sun.
+        let d = f64::from(s.direct) + f64::from(s.multiple);
         if 1.0 - s.transmittance >= COVER_MIN {
             covered += 1;
             covered_sq += d * d;
