@@ -416,13 +416,10 @@ fn default_runs_converge_and_the_snow_shows() {
     ]);
 }
 
-/// Known failure (issue 18, left open): on the teapot and the ant (curved closed surfaces) the
-/// default run does not converge (teapot: 25 of 48 steps hit the 200-iteration cap, residual ≈ 7
-/// tan units; ant: 48 of 48): snow keeps moving every sweep, which suggests a cycle through
-/// asymmetric layer links on curved surfaces. The teapot did not converge before either (48 of
-/// 48 at the old 20-iteration cap).
+/// The same on curved closed surfaces, the teapot and the ant, which stopped at the cap (teapot 25
+/// of 48 steps, residual ≈ 7 tan units; ant 48 of 48) while snow that ran onto a bare steep flank
+/// waited a sweep per cell; the event-driven sweeps of `settle` settle every step.
 #[test]
-#[ignore = "known failure: stabilization does not converge on curved scans (see the doc comment)"]
 fn default_runs_on_curved_meshes_converge() {
     default_run_checks(&["teapot_npm.obj", "tests/data/mesh/pyvista_ant.ply"]);
 }
