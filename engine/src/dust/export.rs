@@ -297,7 +297,8 @@ pub fn dusty_glb(sh: &Shells, atlas: &TextureAtlas, extras: Option<Value>) -> Ve
         colors: Some(&m.colors),
         triangles: &m.triangles,
         custom: &[],
-        overlay: None,
+        groups: &[],
+        overlays: &[],
         material: GlbMaterial {
             name: m.name.clone(),
             base_color: [c[0], c[1], c[2], 1.0],

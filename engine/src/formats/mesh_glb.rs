@@ -3,8 +3,9 @@
 //! "Outputs": `dusty.glb`).
 //!
 //! **Structure.** One glTF node per [`GlbNode`], each with its own mesh of one triangle primitive
-//! (two when the node has an [`GlbNode::overlay`]: the overlay is the second) and its own material
-//! per primitive, all children of scene 0 in input order. Nodes with no triangles or no
+//! (one per material group when the node has [`GlbNode::groups`], sharing one set of vertex
+//! accessors; then one more per [`GlbNode::overlays`] entry) and its own material per primitive,
+//! all children of scene 0 in input order. Nodes with no triangles or no
 //! positions are skipped (the validator rejects empty accessors), so node `i` of the file is the
 //! `i`-th *non-empty* input node. No node transforms: positions are already in world space,
 //! metres, Y up (glTF's frame; see [`crate::geom::mesh`]).
@@ -71,10 +72,24 @@ pub struct GlbNode<'a> {
     /// exported as float SCALAR attributes, each as long as `positions`. Panics on a name without
     /// the leading `_` (a caller bug).
     pub custom: &'a [(&'a str, &'a [f32])],
-    /// A second primitive of this node's mesh, drawn with its own arrays and material (e.g. a
-    /// blended decal layer); its `name` and its own `overlay` are ignored, its `custom`
-    /// attributes are written. Skipped when empty.
-    pub overlay: Option<&'a GlbNode<'a>>,
+    /// Material groups: when not empty, the node's triangles are drawn as one primitive per
+    /// group (its range of `triangles`, in order), all sharing the node's vertex attributes
+    /// (one set of accessors), each with its own material; `material` is then unused. For a
+    /// surface whose parts have different materials but share vertices (the displaced scene of
+    /// `displaced.glb`). Empty ranges are skipped; ranges past the end are clipped.
+    pub groups: &'a [GlbGroup],
+    /// Further primitives of this node's mesh, after its own, each drawn with its own arrays and
+    /// material (e.g. blended decal layers); their `name`, `groups` and own `overlays` are
+    /// ignored, their `custom` attributes are written. Empty ones are skipped.
+    pub overlays: &'a [GlbNode<'a>],
+}
+
+/// One material group of a [`GlbNode`]: a range of its triangles and their material.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlbGroup {
+    /// Triangle indices (into [`GlbNode::triangles`]) of this group.
+    pub triangles: std::ops::Range<usize>,
+    pub material: GlbMaterial,
 }
 
 /// A metallic-roughness material.
@@ -124,12 +139,12 @@ pub fn mesh_glb(nodes: &[GlbNode], extras: Option<Value>) -> Vec<u8> {
     let mut meshes: Vec<Value> = Vec::new();
 
     for node in nodes {
-        let Some(first) = b.primitive(node) else {
+        let mut primitives = b.primitives(node, node.groups);
+        if primitives.is_empty() {
             continue;
-        };
-        let mut primitives = vec![first];
-        if let Some(second) = node.overlay.and_then(|o| b.primitive(o)) {
-            primitives.push(second);
+        }
+        for o in node.overlays {
+            primitives.extend(b.primitives(o, &[]));
         }
         meshes.push(json!({ "name": node.name, "primitives": primitives }));
         gl_nodes.push(json!({ "name": node.name, "mesh": meshes.len() - 1 }));
@@ -209,12 +224,30 @@ impl Builder {
         accessor(&mut self.accessors, v, count, ty, FLOAT)
     }
 
-    /// The node's arrays, material and texture as one triangle primitive (JSON); `None` for a
-    /// node with no positions or no triangles (skipped: the validator rejects empty accessors).
-    fn primitive(&mut self, node: &GlbNode) -> Option<Value> {
+    /// The node's arrays, materials and textures as triangle primitives (JSON): one, or one
+    /// per non-empty group of `groups` sharing the vertex accessors. None for a node with no
+    /// positions or no triangles (skipped: the validator rejects empty accessors).
+    fn primitives(&mut self, node: &GlbNode, groups: &[GlbGroup]) -> Vec<Value> {
         let n = node.positions.len();
-        if n == 0 || node.triangles.is_empty() {
-            return None;
+        let nt = node.triangles.len();
+        let ranges: Vec<(std::ops::Range<usize>, &GlbMaterial)> = if groups.is_empty() {
+            vec![(0..nt, &node.material)]
+        } else {
+            groups
+                .iter()
+                .map(|g| {
+                    (
+                        g.triangles.start.min(nt)..g.triangles.end.min(nt),
+                        &g.material,
+                    )
+                })
+                .collect()
+        }
+        .into_iter()
+        .filter(|(r, _)| !r.is_empty())
+        .collect();
+        if n == 0 || ranges.is_empty() {
+            return Vec::new();
         }
         for (what, len) in [
             ("normals", node.normals.map(<[_]>::len)),
@@ -271,41 +304,58 @@ impl Builder {
             let a = self.attribute(&bytes, n, "SCALAR");
             attributes.insert((*semantic).into(), json!(a));
         }
-        let idx: Vec<u8> = node
-            .triangles
+        let attributes = Value::Object(attributes);
+        let has_uvs = node.uvs.is_some();
+        ranges
+            .into_iter()
+            .map(|(range, m)| {
+                let indices = self.indices(node.name, n, &node.triangles[range]);
+                let material = self.material(m, node.name, has_uvs);
+                json!({
+                    "attributes": attributes.clone(), "indices": indices,
+                    "material": material, "mode": 4
+                })
+            })
+            .collect()
+    }
+
+    /// Triangle indices (u32) as an accessor; returns its index. Panics on an index `≥ n`.
+    fn indices(&mut self, name: &str, n: usize, triangles: &[[u32; 3]]) -> usize {
+        let idx: Vec<u8> = triangles
             .iter()
             .flat_map(|t| {
                 for &i in t {
-                    assert!((i as usize) < n, "{}: index {i} out of range", node.name);
+                    assert!((i as usize) < n, "{name}: index {i} out of range");
                 }
                 *t
             })
             .flat_map(u32::to_le_bytes)
             .collect();
         let v = self.view(&idx, Some(ELEMENT_ARRAY_BUFFER));
-        let indices = accessor(
+        accessor(
             &mut self.accessors,
             v,
-            node.triangles.len() * 3,
+            triangles.len() * 3,
             "SCALAR",
             UNSIGNED_INT,
-        );
+        )
+    }
 
-        // Material (and texture).
-        let m = &node.material;
+    /// A material (and its texture, when the primitive has UVs); returns its index.
+    fn material(&mut self, m: &GlbMaterial, node_name: &str, has_uvs: bool) -> usize {
         let mut pbr = json!({
             "baseColorFactor": m.base_color.map(|v| if v.is_nan() { 1.0 } else { v.clamp(0.0, 1.0) }),
             "metallicFactor": m.metallic.clamp(0.0, 1.0),
             "roughnessFactor": m.roughness.clamp(0.0, 1.0),
         });
-        if let (Some(png), Some(_)) = (&m.texture_png, node.uvs) {
+        if let (Some(png), true) = (&m.texture_png, has_uvs) {
             let v = self.view(png, None);
             self.images
                 .push(json!({ "bufferView": v, "mimeType": "image/png" }));
             self.textures
                 .push(json!({ "sampler": 0, "source": self.images.len() - 1 }));
             pbr["baseColorTexture"] = json!({ "index": self.textures.len() - 1, "texCoord": 0 });
-        } else if let (Some(tex), Some(_)) = (&m.texture, node.uvs) {
+        } else if let (Some(tex), true) = (&m.texture, has_uvs) {
             let key = Arc::as_ptr(tex) as usize;
             let index = match self.embedded.iter().find(|(k, _)| *k == key) {
                 Some(&(_, i)) => i,
@@ -329,7 +379,7 @@ impl Builder {
             pbr["baseColorTexture"] = json!({ "index": index, "texCoord": 0 });
         }
         let name = if m.name.is_empty() {
-            node.name
+            node_name
         } else {
             &m.name
         };
@@ -341,11 +391,7 @@ impl Builder {
             mat["doubleSided"] = json!(true);
         }
         self.materials.push(mat);
-
-        Some(json!({
-            "attributes": attributes, "indices": indices,
-            "material": self.materials.len() - 1, "mode": 4
-        }))
+        self.materials.len() - 1
     }
 }
 
@@ -380,7 +426,8 @@ impl PartNode {
             colors: self.colors.as_deref(),
             triangles: &self.triangles,
             custom: &[],
-            overlay: None,
+            groups: &[],
+            overlays: &[],
             material: GlbMaterial {
                 name: self.name.clone(),
                 base_color: self.base_color,

@@ -3,14 +3,19 @@
 //! (step 7) → outputs: `snow.glb`, `scene.glb`, `displaced.glb`, `render.png`, `timelapse.png`
 //! (when `frames` > 1) and `report.json` with the mass balance.
 //!
-//! `displaced.glb` (polygon mode) is one node with two primitives of one mesh:
+//! `displaced.glb` (polygon mode) is one node whose mesh has these primitives:
 //!
-//! 1. the displaced surface, opaque and double-sided, `COLOR_0` grey whitened by the snow amount
-//!    `min(depth / sparse_depth, 1)` (white where the snow is at least `sparse_depth` deep), with
-//!    the application-specific float attributes `_SNOW_COVERAGE` (the sparse-flake coverage of
-//!    step 6, [`vertex_coverage`]), `_SNOW_DEPTH` (metres) and `_SNOW_PROBABILITY` (0–1), one
-//!    value per vertex, for tools that read them;
-//! 2. the sparse flakes: [`flake_overlay`]'s shell lifted a thousandth of the diagonal off the
+//! 1. the displaced surface, double-sided, one primitive per input part with the part's own
+//!    material (base colour, base-colour texture through the input's `TEXCOORD_0`, the input's
+//!    vertex colours as `COLOR_0`), all sharing one set of vertices, with the application-specific
+//!    float attributes `_SNOW_COVERAGE` (the sparse-flake coverage of step 6,
+//!    [`vertex_coverage`]), `_SNOW_DEPTH` (metres), `_SNOW_PROBABILITY` (0–1) and
+//!    `_SNOW_POINT_PROBABILITY`, one value per vertex, for tools that read them;
+//! 2. the snow: [`snow_layer`]'s shell lifted half a thousandth of the diagonal, snow-coloured,
+//!    `alphaMode: BLEND`, `COLOR_0` alpha = the snow amount `min(depth / sparse_depth, 1)` (opaque
+//!    white where the snow is at least `sparse_depth` deep, the model's own material where there
+//!    is none);
+//! 3. the sparse flakes: [`flake_overlay`]'s shell lifted a thousandth of the diagonal off the
 //!    surface, `alphaMode: BLEND`, the generated [`flake_texture`] (256², seeded by `seed`, PNG in a
 //!    bufferView, REPEAT) through tri-planar `TEXCOORD_0` at an eighth of the diagonal a tile, and `COLOR_0` alpha =
 //!    the coverage, so core glTF's `factor × texture × COLOR_0` shows flakes only where the
@@ -26,10 +31,10 @@ use super::shape::{displace, SnowMesh, DEFAULT_MIN_DEPTH_M};
 use super::simplify::{simplified_snow_meshes, DEFAULT_MAX_ERROR_CELLS};
 use super::snowfall::{simulate, Snowfall, DEFAULT_RATE_M_PER_H};
 use super::sparse::{
-    flake_overlay, flake_particles, flake_texture, vertex_coverage_with_probability, Flakes,
-    FLAKE_TEXTURE_SIZE,
+    flake_overlay, flake_particles, flake_texture, snow_layer, vertex_coverage_with_probability,
+    Flakes, FLAKE_TEXTURE_SIZE,
 };
-use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbMaterial, GlbNode};
+use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbGroup, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
 use crate::pipeline::Limits;
@@ -46,7 +51,7 @@ pub const MAX_RENDER_FLAKES: usize = 200_000;
 /// Snow's albedo, linear RGB.
 const SNOW: [f32; 3] = [0.9, 0.92, 0.95];
 
-/// The displaced surface's colour where it has no snow, linear grey.
+/// The displaced surface's colour when the input has no parts (so no materials), linear grey.
 const GROUND: f32 = 0.55;
 
 /// The snow amount of the sparse-snow rule, `min(depth / sparse_depth, 1)` (any snow counts as
@@ -122,7 +127,8 @@ fn snow_node(s: &SnowMesh) -> GlbNode<'_> {
         colors: None,
         triangles: &s.triangles,
         custom: &[],
-        overlay: None,
+        groups: &[],
+        overlays: &[],
         material: GlbMaterial {
             name: "snow".into(),
             base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
@@ -250,17 +256,38 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
     let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
     scene.extend(snow.iter().map(snow_node));
     let scene_glb = mesh_glb(&scene, None);
-    // The displaced surface: grey, whitened by the snow amount f = min(depth / sparse_depth, 1)
-    // (white where the snow is at least `sparse_depth` deep); the flakes go on the overlay.
-    let colors: Vec<[f32; 4]> = displaced
+    // The displaced surface in the input's own materials (one primitive per part, sharing the
+    // vertices), the snow over it as a blended layer whose alpha is the snow amount
+    // f = min(depth / sparse_depth, 1), and the flakes above that.
+    let amounts: Vec<f32> = displaced
         .depth
         .iter()
-        .map(|&d| {
-            let s = amount(d, p.sparse_depth);
-            let c = SNOW.map(|w| GROUND + (w - GROUND) * s);
-            [c[0], c[1], c[2], 1.0]
+        .map(|&d| amount(d, p.sparse_depth))
+        .collect();
+    let groups: Vec<GlbGroup> = displaced
+        .parts
+        .iter()
+        .map(|part| GlbGroup {
+            triangles: part.first_triangle..part.first_triangle + part.triangle_count,
+            material: GlbMaterial {
+                name: part.name.clone(),
+                base_color: part.base_color,
+                alpha_blend: part.base_color[3] < 1.0,
+                double_sided: true,
+                texture: part
+                    .texture
+                    .filter(|_| displaced.uvs.is_some())
+                    .and_then(|k| mesh.textures.get(k).cloned()),
+                ..GlbMaterial::default()
+            },
         })
         .collect();
+    let layer = snow_layer(
+        &displaced.positions,
+        &displaced.normals,
+        &displaced.triangles,
+        &amounts,
+    );
     let overlay = flake_overlay(
         &displaced.positions,
         &displaced.normals,
@@ -272,25 +299,47 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
         height: FLAKE_TEXTURE_SIZE as u32,
         data: flake_texture(FLAKE_TEXTURE_SIZE, p.seed),
     };
-    let overlay_node = GlbNode {
-        name: "flakes",
-        positions: &overlay.positions,
-        normals: Some(&overlay.normals),
-        uvs: Some(&overlay.uvs),
-        colors: Some(&overlay.colors),
-        triangles: &overlay.triangles,
-        material: GlbMaterial {
-            name: "snow_flakes".into(),
-            base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
-            roughness: 0.9,
-            alpha_blend: true,
-            double_sided: true,
-            texture_png: Some(encode_rgba(&flakes)),
-            ..GlbMaterial::default()
+    let overlays = [
+        GlbNode {
+            name: "snow_layer",
+            positions: &layer.positions,
+            normals: Some(&layer.normals),
+            uvs: None,
+            colors: Some(&layer.colors),
+            triangles: &layer.triangles,
+            material: GlbMaterial {
+                name: "snow_layer".into(),
+                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
+                roughness: 0.9,
+                alpha_blend: true,
+                double_sided: true,
+                ..GlbMaterial::default()
+            },
+            custom: &[],
+            groups: &[],
+            overlays: &[],
         },
-        custom: &[],
-        overlay: None,
-    };
+        GlbNode {
+            name: "flakes",
+            positions: &overlay.positions,
+            normals: Some(&overlay.normals),
+            uvs: Some(&overlay.uvs),
+            colors: Some(&overlay.colors),
+            triangles: &overlay.triangles,
+            material: GlbMaterial {
+                name: "snow_flakes".into(),
+                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
+                roughness: 0.9,
+                alpha_blend: true,
+                double_sided: true,
+                texture_png: Some(encode_rgba(&flakes)),
+                ..GlbMaterial::default()
+            },
+            custom: &[],
+            groups: &[],
+            overlays: &[],
+        },
+    ];
     let custom: [(&str, &[f32]); 4] = [
         ("_SNOW_COVERAGE", &coverage),
         ("_SNOW_DEPTH", &displaced.depth),
@@ -302,16 +351,18 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
             name: "displaced",
             positions: &displaced.positions,
             normals: Some(&displaced.normals),
-            uvs: None,
-            colors: Some(&colors),
+            uvs: displaced.uvs.as_deref(),
+            colors: displaced.colors.as_deref(),
             triangles: &displaced.triangles,
             material: GlbMaterial {
                 name: "displaced".into(),
+                base_color: [GROUND, GROUND, GROUND, 1.0],
                 double_sided: true,
                 ..GlbMaterial::default()
             },
             custom: &custom,
-            overlay: Some(&overlay_node),
+            groups: &groups,
+            overlays: &overlays,
         }],
         None,
     );
@@ -331,6 +382,7 @@ pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Ca
             "vertices": mesh.positions.len(),
             "triangles": mesh.triangles.len(),
             "parts": mesh.parts.len(),
+            "textures": mesh.textures.iter().map(|t| json!({"name": t.name, "mime": t.mime, "width": t.width, "height": t.height})).collect::<Vec<_>>(),
             "bounds": mesh.bounds().map(|(lo, hi)| [lo, hi]),
         },
         "snowfall": {

@@ -45,21 +45,28 @@
 //! cell or one of its 4 neighbours changed since its outflow was last found zero) are recomputed.
 //! Convergence = an iteration that moves nothing.
 //!
-//! **Then Gauss–Seidel sweeps in height order.** After [`DEFAULT_JACOBI_ITERATIONS`] Jacobi
-//! iterations in one call (a small settlement, such as one animation step's, is over long
-//! before), the iterations become serial Gauss–Seidel sweeps that visit the dirty cells holding
-//! snow **from the highest snow surface down** (sorted once per sweep): each cell's outflows,
-//! computed by the same rule from the current state, are applied at once. Snow only moves down,
-//! so what a cell gives is visited later in the same sweep: snow on a steep roof runs off it,
-//! falls and runs down the pile below in *one* sweep, whichever way the slope faces. The row-order
-//! sweeps in four alternating orders used before needed a sweep per cell of every slope that ran
-//! against the current order, so on real meshes (roofs, table edges, piles under eaves 50–200
-//! cells long at 512²) every step of a default run stopped unconverged at the 20-iteration cap
-//! (issue 18: 48 of 48 steps) and left snow steeper than the repose angle; in height order the
-//! same steps converge in a few to a few dozen sweeps (BENCHMARKS.md, "Snow cover, whole
-//! pipeline"). The sweeps are serial and so thread-count independent (the order is a total
-//! order: surface, then cell and layer index), but not isotropic (ties), which is why the
-//! order-free Jacobi levelling comes first.
+//! **Then Gauss–Seidel sweeps in height order, event-driven.** After [`DEFAULT_JACOBI_ITERATIONS`]
+//! Jacobi iterations in one call (a small settlement, such as one animation step's, is over long
+//! before), the iterations become serial sweeps over a **max-heap keyed by the snow surface**:
+//! the dirty cells holding snow go in, the highest comes out, its outflows (the same rule, from
+//! the current state) are applied at once, and every cell whose outflow that may have created
+//! goes back in: the receivers, the giver (if it still has snow) and the cells whose links lead
+//! into the giver (their drop toward it grew; a drop toward a receiver only shrank). So when the
+//! heap is empty nothing can move: one sweep settles the step and the next (over the cells it
+//! touched) confirms it; a default run takes 2 Jacobi iterations + 2 sweeps per step on every
+//! mesh measured (BENCHMARKS.md, "Snow cover, convergence on curved meshes"). Termination: a move
+//! takes snow from a higher surface to a lower one and less than the drop, so Σ mass × height
+//! falls by at least one unit × `T` per move. The sweeps are serial and so thread-count
+//! independent (the order is a total order: surface, then cell and layer index).
+//!
+//! Why: the row-order sweeps used first needed a sweep per cell of every slope that ran against
+//! their order (issue 18: 48 of 48 steps capped); sorting the cells that held snow at the start
+//! of a sweep fixed roofs and tables but not curved meshes: snow moved onto a *bare* cell waited
+//! for the next sweep, so snow spilling down a bare flank steeper than the repose angle (the
+//! teapot's body) advanced one cell per sweep, 25 of 48 steps stopped at the 200-sweep cap with a
+//! residual of 7 tan units; re-queuing the receivers alone fixed the teapot, but the ant (steep,
+//! narrow legs where a share-limited giver keeps an excess) still stopped on all 48 steps, until
+//! the giver and the cells above it were re-queued too.
 //!
 //! **Convergence test and residual.** A step has converged when an iteration moves nothing: then no
 //! drop from a cell with snow exceeds `T` by more than the tolerance ([`SLOPE_TOLERANCE`]), up to
@@ -78,7 +85,7 @@
 use rayon::prelude::*;
 
 use super::coarse::{Coarse, COARSE_MIN_SIDE};
-use super::maps::{SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS, SNOW_UNIT_M};
+use super::maps::{opposite, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS, SNOW_UNIT_M};
 use crate::{Canceled, Control};
 
 /// Slope tolerance (in tan units) of the stabilized state; drops below `T + SLOPE_TOLERANCE · cell`
@@ -165,8 +172,10 @@ pub struct Settler {
     dirty_next: Vec<bool>,
     /// Per band of TILE rows: the `c · layers + k` with an outflow, and (moved, lost) units.
     bands: Vec<(Vec<u32>, u64, u64)>,
-    /// The height-ordered sweep's visiting order: (inverted surface bits << 32 | c · layers + k).
+    /// The height-ordered sweep's queue ([`heap_key`]s), kept for its allocation.
     order: Vec<u64>,
+    /// Per cell and layer: in the sweep's queue.
+    queued: Vec<bool>,
 }
 
 impl Settler {
@@ -193,6 +202,7 @@ impl Settler {
             dirty_next: vec![false; nx * nz],
             bands: vec![(Vec::new(), 0, 0); tz],
             order: Vec::new(),
+            queued: vec![false; nx * nz * maps.layers.len()],
         }
     }
 
@@ -234,7 +244,7 @@ impl Settler {
             let (moved, lost) = if rep.iterations <= self.jacobi_iterations {
                 self.iterate(maps, t_drop, tol, self.relaxation)
             } else {
-                self.sweep(maps, t_drop, tol, self.sweep_relaxation)
+                self.sweep(maps, t_drop, tol, self.sweep_relaxation, ctl)?
             };
             rep.moved_units += moved;
             rep.lost_units += lost;
@@ -362,18 +372,40 @@ impl Settler {
 }
 
 impl Settler {
-    /// One Gauss–Seidel sweep **in height order** (serial): the dirty cells of the active tiles
-    /// that hold snow are sorted by their snow surface, highest first (ties by cell and layer
-    /// index), and visited in that order; each cell's outflows (computed as in
-    /// [`Settler::iterate`] from the *current* state) are applied at once. Snow only moves down,
-    /// so a receiver is visited after its giver in the same sweep: snow runs down a whole slope,
-    /// off a roof and down the pile below it in one sweep, whatever the slope's direction (the
-    /// row-order sweeps it replaces needed one sweep per cell of a slope that ran against their
-    /// order). Returns (moved, lost) units and updates the active set (tiles with a change,
-    /// dilated by one tile).
-    fn sweep(&mut self, maps: &mut SnowMaps, t_drop: f32, tol: f32, omega: f32) -> (u64, u64) {
+    /// One Gauss–Seidel sweep **in height order** (serial), event-driven: the dirty cells of the
+    /// active tiles that hold snow go into a max-heap keyed by their snow surface (ties: lower
+    /// cell and layer index first); the highest is taken out, its outflows (computed as in
+    /// [`Settler::iterate`] from the *current* state) are applied at once, and every cell whose
+    /// outflow that may have created is queued in the same heap: the receivers (they hold more
+    /// snow now, and snow that lands on a bare cell of a steep flank must run on down it), the
+    /// giver itself (a share-limited giver may still have an excess) and the cells whose links
+    /// lead into the giver (their drop toward it grew). A drop can only grow toward a giver, so
+    /// when the heap is empty no cell has an outflow: one sweep settles the whole state, and the
+    /// next one (over the cells it touched) confirms it. Snow only moves down, so a receiver is
+    /// lower than its giver and comes later: snow runs down a whole slope, off a roof and down
+    /// the pile below in one pass, whatever the slope's direction.
+    ///
+    /// Why the queue and not a sorted list of the cells that held snow when the sweep began (the
+    /// scheme before): snow moved onto a *bare* cell waited for the next sweep, so snow spilling
+    /// from a pile down a bare flank steeper than the repose angle (the teapot's body, the ant's
+    /// legs and abdomen) advanced one cell per sweep, and a flank 200 cells long stopped every
+    /// step at the 200-sweep cap (issue 18: teapot 25 of 48 steps, ant 48 of 48). Termination:
+    /// every move takes snow from a higher surface to a lower one by less than the drop (the
+    /// shares are at most the excess), so Σ mass × height falls by at least one unit × `T` per
+    /// move and is bounded below. Checks `ctl` every [`CHECK_EVERY`] cells.
+    ///
+    /// Returns (moved, lost) units and updates the active set (tiles with a change, dilated by
+    /// one tile).
+    fn sweep(
+        &mut self,
+        maps: &mut SnowMaps,
+        t_drop: f32,
+        tol: f32,
+        omega: f32,
+        ctl: &dyn Control,
+    ) -> Result<(u64, u64), Canceled> {
         let (nx, nz, tx) = (self.nx, self.nz, self.tx);
-        let (moved, lost) = (&mut 0u64, &mut 0u64);
+        let (mut moved, mut lost) = (0u64, 0u64);
         self.changed.iter_mut().for_each(|v| *v = false);
         let nl = maps.layers.len();
         self.order.clear();
@@ -392,19 +424,30 @@ impl Settler {
                             if l.snow[c] == 0 {
                                 continue;
                             }
-                            // Highest surface first: the key's high half is the surface's
-                            // order-preserving bits, inverted.
-                            let key = !ordered_bits(l.surface(c));
-                            self.order
-                                .push((u64::from(key) << 32) | (c * nl + k) as u64);
+                            let idx = c * nl + k;
+                            self.queued[idx] = true;
+                            self.order.push(heap_key(l.surface(c), idx));
                         }
                     }
                 }
             }
         }
-        self.order.sort_unstable();
-        for e in 0..self.order.len() {
-            let idx = (self.order[e] & 0xFFFF_FFFF) as usize;
+        let mut heap = std::collections::BinaryHeap::from(std::mem::take(&mut self.order));
+        let mut visits = 0usize;
+        while let Some(key) = heap.pop() {
+            visits += 1;
+            if visits % CHECK_EVERY == 0 {
+                if let Err(e) = ctl.checkpoint() {
+                    for k in heap.drain() {
+                        self.queued[key_index(k)] = false;
+                    }
+                    self.queued[key_index(key)] = false;
+                    self.order = heap.into_vec();
+                    return Err(e);
+                }
+            }
+            let idx = key_index(key);
+            self.queued[idx] = false;
             let (c, k) = (idx / nl, idx % nl);
             let (i, j) = (c % nx, c / nx);
             if maps.layers[k].snow[c] == 0 {
@@ -415,32 +458,75 @@ impl Settler {
             if gone == 0 {
                 continue;
             }
-            *moved += u64::from(gone);
-            *lost += l;
+            moved += u64::from(gone);
+            lost += l;
             maps.layers[k].snow[c] -= gone;
             self.changed[(j / TILE) * tx + i / TILE] = true;
             mark(&mut self.dirty_next, nx, nz, i, j);
             let links = maps.layers[k].links[c];
             for d in 0..4 {
-                if o[d] == 0 || links[d] == LINK_LOST {
+                let (di, dj) = NEIGHBOURS[d];
+                let (i2, j2) = (i as isize + di, j as isize + dj);
+                if i2 < 0 || j2 < 0 || i2 as usize >= nx || j2 as usize >= nz {
                     continue;
                 }
-                let (di, dj) = NEIGHBOURS[d];
-                let (i2, j2) = ((i as isize + di) as usize, (j as isize + dj) as usize);
-                let l2 = &mut maps.layers[usize::from(links[d])];
+                let (i2, j2) = (i2 as usize, j2 as usize);
                 let c2 = j2 * nx + i2;
-                // The rounding remainder of a scaled-down outflow may not fit.
-                let take = o[d].min(l2.capacity(c2).saturating_sub(l2.snow[c2]));
-                l2.snow[c2] += take;
-                maps.layers[k].snow[c] += o[d] - take;
-                *moved -= u64::from(o[d] - take);
-                self.changed[(j2 / TILE) * tx + i2 / TILE] = true;
-                mark(&mut self.dirty_next, nx, nz, i2, j2);
+                if o[d] != 0 && links[d] != LINK_LOST {
+                    let k2 = usize::from(links[d]);
+                    let l2 = &mut maps.layers[k2];
+                    // The rounding remainder of a scaled-down outflow may not fit.
+                    let take = o[d].min(l2.capacity(c2).saturating_sub(l2.snow[c2]));
+                    l2.snow[c2] += take;
+                    maps.layers[k].snow[c] += o[d] - take;
+                    moved -= u64::from(o[d] - take);
+                    self.changed[(j2 / TILE) * tx + i2 / TILE] = true;
+                    mark(&mut self.dirty_next, nx, nz, i2, j2);
+                    let idx2 = c2 * nl + k2;
+                    if take > 0 && !self.queued[idx2] {
+                        self.queued[idx2] = true;
+                        heap.push(heap_key(maps.layers[k2].surface(c2), idx2));
+                    }
+                }
+                // The cells of this neighbour whose link back leads into the giver: their drop
+                // toward it grew.
+                let back = opposite(d);
+                for (k3, l3) in maps.layers.iter().enumerate() {
+                    let idx3 = c2 * nl + k3;
+                    if l3.snow[c2] != 0
+                        && usize::from(l3.links[c2][back]) == k
+                        && !self.queued[idx3]
+                    {
+                        self.queued[idx3] = true;
+                        heap.push(heap_key(l3.surface(c2), idx3));
+                    }
+                }
+            }
+            if maps.layers[k].snow[c] != 0 && !self.queued[idx] {
+                self.queued[idx] = true;
+                heap.push(heap_key(maps.layers[k].surface(c), idx));
             }
         }
+        self.order = heap.into_vec();
         self.next_active();
-        (*moved, *lost)
+        Ok((moved, lost))
     }
+}
+
+/// Cells a [`Settler`]'s sweep visits between cancellation checks.
+const CHECK_EVERY: usize = 1 << 16;
+
+/// The sweep's max-heap key of cell-and-layer `idx` with snow surface `surface`: highest surface
+/// first, then the lower index.
+#[inline]
+fn heap_key(surface: f32, idx: usize) -> u64 {
+    (u64::from(ordered_bits(surface)) << 32) | u64::from(u32::MAX - idx as u32)
+}
+
+/// The cell-and-layer index of a [`heap_key`].
+#[inline]
+fn key_index(key: u64) -> usize {
+    (u32::MAX - (key & 0xFFFF_FFFF) as u32) as usize
 }
 
 /// The bits of `x` as a `u32` that sorts like `x` (NaN: as the largest).

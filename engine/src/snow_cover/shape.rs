@@ -48,7 +48,7 @@ use std::collections::HashMap;
 
 use super::maps::{opposite, SnowMaps, NEIGHBOURS};
 use super::region::{DEPTH_EPS_REL, STEP_SLOPE_DEG, UP_FACING_MIN_NY};
-use crate::geom::mesh::Mesh;
+use crate::geom::mesh::{Mesh, MeshPart};
 
 /// Snow thinner than this (metres) gets no snow mesh (it is sparse snow). 1 mm.
 pub const DEFAULT_MIN_DEPTH_M: f32 = 1e-3;
@@ -87,6 +87,12 @@ pub struct DisplacedMesh {
     pub probability: Vec<f32>,
     /// Snow depth per vertex, metres (the amount the vertex was raised).
     pub depth: Vec<f32>,
+    /// The input's texture coordinates, carried to the new vertices.
+    pub uvs: Option<Vec<[f32; 2]>>,
+    /// The input's vertex colours (linear RGBA), carried to the new vertices.
+    pub colors: Option<Vec<[f32; 4]>>,
+    /// The input's parts (materials) with their triangle ranges in `triangles`.
+    pub parts: Vec<MeshPart>,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -578,11 +584,55 @@ pub fn subdivide_with(
 /// up, `n_y ≤ 0.05`), per vertex the area-weighted mean of its faces' probabilities, and the snow
 /// depth of the layer under the vertex (0 for vertices with no up-facing face, or off the maps);
 /// vertices are raised by that depth along +Y. Allocates the output.
+///
+/// The input's texture coordinates and vertex colours are carried to the new vertices (midpoint
+/// means) and its parts keep their order with their new triangle ranges (the subdivision runs
+/// per part, so each part's triangles stay contiguous), so `displaced.glb` can draw every part
+/// with its own material and texture.
 pub fn displace(mesh: &Mesh, maps: &SnowMaps, max_edge_length: Option<f32>) -> DisplacedMesh {
     let mut positions = mesh.positions.clone();
     let mut triangles = mesh.triangles.clone();
+    let mut uvs = mesh.uvs.clone();
+    let mut colors = mesh.colors.clone();
+    let mut parts = mesh.parts.clone();
     if let Some(l) = max_edge_length.filter(|l| l.is_finite() && *l > 0.0) {
-        subdivide(&mut positions, &mut triangles, l, MAX_DISPLACED_TRIANGLES);
+        let mut out: Vec<[u32; 3]> = Vec::with_capacity(triangles.len());
+        let ranges: Vec<(usize, usize)> = if parts.is_empty() {
+            vec![(0, triangles.len())]
+        } else {
+            parts
+                .iter()
+                .map(|p| {
+                    let end = (p.first_triangle + p.triangle_count).min(triangles.len());
+                    (p.first_triangle.min(end), end)
+                })
+                .collect()
+        };
+        let mut total = triangles.len();
+        let mut new_ranges = Vec::with_capacity(ranges.len());
+        for (a, b) in ranges {
+            let mut tris = triangles[a..b].to_vec();
+            let before = tris.len();
+            let budget = MAX_DISPLACED_TRIANGLES.saturating_sub(total - before);
+            subdivide_with(&mut positions, &mut tris, l, budget, |i, j| {
+                if let Some(u) = uvs.as_mut() {
+                    let (ui, uj) = (u[i as usize], u[j as usize]);
+                    u.push([0.5 * (ui[0] + uj[0]), 0.5 * (ui[1] + uj[1])]);
+                }
+                if let Some(c) = colors.as_mut() {
+                    let (ci, cj) = (c[i as usize], c[j as usize]);
+                    c.push([0, 1, 2, 3].map(|k| 0.5 * (ci[k] + cj[k])));
+                }
+            });
+            total = total - before + tris.len();
+            new_ranges.push((out.len(), tris.len()));
+            out.extend(tris);
+        }
+        for (p, (first, count)) in parts.iter_mut().zip(new_ranges) {
+            p.first_triangle = first;
+            p.triangle_count = count;
+        }
+        triangles = out;
     }
     let nv = positions.len();
     let mut p_acc = vec![(0.0f64, 0.0f64); nv]; // (Σ area·P, Σ area)
@@ -645,5 +695,8 @@ pub fn displace(mesh: &Mesh, maps: &SnowMaps, max_edge_length: Option<f32>) -> D
         triangles,
         probability,
         depth,
+        uvs,
+        colors,
+        parts,
     }
 }

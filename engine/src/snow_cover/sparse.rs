@@ -331,6 +331,82 @@ pub struct FlakeOverlay {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// How far the snow layer of `displaced.glb` ([`snow_layer`]) floats above the surface, as a
+/// share of the bounding-box diagonal: half of [`FLAKE_LIFT`], so the flakes stay above it.
+pub const SNOW_LAYER_LIFT: f32 = 0.5 * FLAKE_LIFT;
+
+/// The snow of `displaced.glb` as a layer over the input's own materials: the displaced surface's
+/// triangles with snow at a corner, lifted along the smooth normals by [`SNOW_LAYER_LIFT`] × the
+/// bounding-box diagonal (why lifted: see [`flake_overlay`]), `COLOR_0 = (1, 1, 1, amount)`, to be
+/// drawn alpha-blended in the snow colour. `amount` is the snow amount per vertex in [0, 1]
+/// (`min(depth / sparse_depth, 1)`): where it is 1 the snow hides the surface, where it is 0 the
+/// surface's own material shows (a textured model keeps its texture beside the snow). Core
+/// glTF multiplies `COLOR_0` into the base colour, so whitening the surface itself cannot work on a
+/// dark or textured material; a blended layer can. Vertices are shared between the kept
+/// triangles (renumbered in first-use order). Deterministic; `O(triangles)`.
+pub fn snow_layer(
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    amount: &[f32],
+) -> SnowLayer {
+    let diag = bounds_of(positions).map_or(0.0, |(lo, hi)| {
+        (0..3)
+            .map(|k| f64::from(hi[k] - lo[k]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    });
+    let lift = if diag.is_finite() {
+        (diag * f64::from(SNOW_LAYER_LIFT)) as f32
+    } else {
+        0.0
+    };
+    let alpha = |i: u32| {
+        let a = amount[i as usize];
+        if a.is_nan() {
+            0.0
+        } else {
+            a.clamp(0.0, 1.0)
+        }
+    };
+    let mut remap = vec![u32::MAX; positions.len()];
+    let mut out = SnowLayer::default();
+    for t in triangles {
+        if t.iter().all(|&i| alpha(i) <= 0.0) {
+            continue;
+        }
+        let tri = t.map(|i| {
+            let r = &mut remap[i as usize];
+            if *r == u32::MAX {
+                *r = out.positions.len() as u32;
+                let p = positions[i as usize];
+                let n = match unit_vector(normals[i as usize]) {
+                    [0.0, 0.0, 0.0] => [0.0, 1.0, 0.0],
+                    n => n,
+                };
+                out.positions.push([0, 1, 2].map(|k| p[k] + n[k] * lift));
+                out.normals.push(n);
+                out.colors.push([1.0, 1.0, 1.0, alpha(i)]);
+            }
+            *r
+        });
+        out.triangles.push(tri);
+    }
+    out
+}
+
+/// The arrays of [`snow_layer`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SnowLayer {
+    /// Vertices lifted off the surface, metres.
+    pub positions: Vec<[f32; 3]>,
+    /// The surface's smooth unit normals at those vertices.
+    pub normals: Vec<[f32; 3]>,
+    /// `(1, 1, 1, amount)`.
+    pub colors: Vec<[f32; 4]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
 /// Flake geometry for the render (module doc, "Flakes in the render").
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Flakes {

@@ -79,7 +79,8 @@ fn glb_textured_cube_is_valid() {
         colors: None,
         triangles: &t,
         custom: &[],
-        overlay: None,
+        groups: &[],
+        overlays: &[],
         material: GlbMaterial {
             name: "glass".into(),
             base_color: [1.0, 1.0, 1.0, 0.5],
@@ -200,7 +201,8 @@ fn glb_vertex_colours_are_valid() {
         colors: Some(&colors),
         triangles: &t,
         custom: &[],
-        overlay: None,
+        groups: &[],
+        overlays: &[],
         material: GlbMaterial::default(),
     };
     let glb = mesh_glb(&[node], None);
