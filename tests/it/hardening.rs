@@ -62,7 +62,7 @@ async fn meshes_with_absurd_or_non_finite_coordinates_are_422_naming_the_vertex(
             "dust",
             "mesh",
             json!({"width": 64, "height": 48, "shells": 2, "texture_size": 64}),
-            format!("v 5e6 4e6 0\nv 5000001 4e6 0\nv 5e6 4000001 0\nf 1 2 3\n").into_bytes(),
+            b"v 5e6 4e6 0\nv 5000001 4e6 0\nv 5e6 4000001 0\nf 1 2 3\n".to_vec(),
             "utm.obj",
         )
         .await;
