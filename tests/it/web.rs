@@ -219,10 +219,10 @@ fn studio_in_headless_chromium() {
 
 /// `displaced.glb` in a real glTF viewer: three.js's `GLTFLoader` in headless Chromium
 /// (`tests/browser/gltf_viewer.mjs`) loads the snow-covered teapot with no error, makes the
-/// surface an opaque vertex-coloured mesh with the `_SNOW_*` attributes and the flake overlay a
-/// transparent textured one, and the overlay shows: drawn over the surface it changes a share of
-/// the model's pixels (the flakes where the coverage is partial, not the whole model: no
-/// z-fighting) and brightens nearly all of those (white flakes on grey). Screenshot:
+/// input's part an opaque mesh with the `_SNOW_*` attributes, the snow layer a blended
+/// vertex-coloured one and the flake overlay a transparent textured one, and the blended layers
+/// show: drawn over the surface they change a share of the model's pixels (where snow lies, not
+/// the whole model: no z-fighting) and brighten nearly all of those (white snow on grey). Screenshot:
 /// `target/browser/displaced_flakes.png`. Alone: `cargo test --test it web::displaced_glb`.
 #[test]
 fn displaced_glb_shows_its_flakes_in_three_js() {
@@ -265,17 +265,18 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
         .unwrap_or_else(|e| panic!("{e}: {log}"));
     assert_eq!(r["problems"], json!([]), "{r}");
     assert_eq!(r["error"], Value::Null, "{r}");
+    // The input's part (its own material, no vertex colours: the teapot OBJ has none) with the
+    // snow attributes, the snow as a blended vertex-coloured layer over it (alpha = the snow
+    // amount; issue 18), and the flake overlay.
     let meshes = r["meshes"].as_array().unwrap();
-    assert_eq!(meshes.len(), 2, "surface + flake overlay: {r}");
-    let (surface, flakes) = (&meshes[0], &meshes[1]);
-    assert_eq!(surface["material"], "displaced");
+    assert_eq!(meshes.len(), 3, "surface + snow layer + flake overlay: {r}");
+    let (surface, layer, flakes) = (&meshes[0], &meshes[1], &meshes[2]);
+    assert_eq!(surface["material"], "part0");
     assert_eq!(surface["transparent"], false);
-    assert_eq!(surface["vertexColors"], true);
     for a in [
         "_snow_coverage",
         "_snow_depth",
         "_snow_probability",
-        "color",
         "normal",
     ] {
         assert!(
@@ -286,6 +287,9 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
             "{a}: {r}"
         );
     }
+    assert_eq!(layer["material"], "snow_layer");
+    assert_eq!(layer["transparent"], true);
+    assert_eq!(layer["vertexColors"], true);
     assert_eq!(flakes["material"], "snow_flakes");
     assert_eq!(flakes["transparent"], true);
     assert_eq!(flakes["texture"], true);
@@ -302,7 +306,7 @@ fn displaced_glb_shows_its_flakes_in_three_js() {
     );
     assert!(
         changed > 0.005 * model && changed < 0.5 * model,
-        "flakes on part of the model: {r}"
+        "snow and flakes on part of the model: {r}"
     );
-    assert!(brighter >= 0.95 * changed, "white flakes on grey: {r}");
+    assert!(brighter >= 0.95 * changed, "white snow on grey: {r}");
 }
