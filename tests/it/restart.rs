@@ -232,22 +232,7 @@ async fn a_job_whose_worker_dies_in_every_attempt_ends_poisoned() {
 
     // The third start would be over the limit: the job is given up.
     let (mut child, addr) = spawn_server_with(dir.path(), &flags);
-    let t0 = Instant::now();
-    let done: Value = loop {
-        let j: Value = client
-            .get(format!("http://{addr}/v1/jobs/{id}"))
-            .header("prefer", "wait=10")
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if j["status"] != "queued" && j["status"] != "running" {
-            break j;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(60), "{j}");
-    };
+    let done = wait_ended(&client, &addr, &id, 10, 60).await;
     assert_eq!(done["status"], "failed", "{done}");
     assert_eq!(
         done["error"]["type"], "https://phenomena.dev/problems/poisoned",
@@ -279,22 +264,7 @@ async fn a_job_whose_worker_dies_in_every_attempt_ends_poisoned() {
     // reused), and it succeeds when nothing kills its worker.
     let again = submit(addr.clone()).await;
     assert_ne!(again, id);
-    let t0 = Instant::now();
-    let j: Value = loop {
-        let j: Value = client
-            .get(format!("http://{addr}/v1/jobs/{again}"))
-            .header("prefer", "wait=30")
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if j["status"] != "queued" && j["status"] != "running" {
-            break j;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(300), "{j}");
-    };
+    let j = wait_ended(&client, &addr, &again, 30, 300).await;
     assert_eq!(j["status"], "succeeded", "{j}");
     assert_eq!(j["attempts"], json!(1), "{j}");
     child.kill().unwrap();
@@ -344,5 +314,32 @@ pub async fn assert_same_as_cli(
             served.as_ref() == offline.as_slice(),
             "{name} differs between the served job and the CLI"
         );
+    }
+}
+
+/// Polls `GET /v1/jobs/{id}` (long-polling `wait` seconds a request) until the job is neither
+/// queued nor running, and returns its record; fails after `limit` seconds.
+async fn wait_ended(
+    client: &reqwest::Client,
+    addr: &str,
+    id: &str,
+    wait: u64,
+    limit: u64,
+) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let j: Value = client
+            .get(format!("http://{addr}/v1/jobs/{id}"))
+            .header("prefer", format!("wait={wait}"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] != "queued" && j["status"] != "running" {
+            return j;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(limit), "{j}");
     }
 }
