@@ -51,8 +51,14 @@ impl Camera {
     }
 
     /// Image-plane coordinates of `p` for an image of aspect `width / height`: `[-1, 1]²` is the
-    /// frame (x right, y up); `None` when `p` is behind the eye.
+    /// frame (x right, y up); `None` when `p` is behind the eye. For many points, build the
+    /// [`Projector`] once ([`Camera::projector`]): the same numbers without the per-point basis.
     pub fn project_ndc(&self, p: [f64; 3], aspect: f64) -> Option<[f64; 2]> {
+        self.projector(aspect).project(p)
+    }
+
+    /// The camera's basis and field of view, set up once for [`Projector::project`].
+    pub fn projector(&self, aspect: f64) -> Projector {
         let f = normalize(sub(self.target, self.eye));
         let mut r = cross(f, self.up);
         if dot(r, r) < 1e-18 {
@@ -61,15 +67,14 @@ impl Camera {
         let r = normalize(r);
         let u = cross(r, f);
         let tan_half = (self.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan();
-        let v = sub(p, self.eye);
-        let z = dot(v, f);
-        if z <= 1e-9 {
-            return None;
+        Projector {
+            eye: self.eye,
+            f,
+            r,
+            u,
+            tan_half,
+            aspect,
         }
-        Some([
-            dot(v, r) / (z * tan_half * aspect),
-            dot(v, u) / (z * tan_half),
-        ])
     }
 
     /// An orbit camera (see [`Camera::orbit`]) at the smallest distance from which every point of
@@ -96,9 +101,9 @@ impl Camera {
         let hfov = (2.0 * ((vfov * 0.5).to_radians().tan() * aspect).atan()).to_degrees();
         let far = Self::auto_distance(radius, vfov.min(hfov)) / margin.clamp(0.1, 1.0);
         let fits = |d: f64| {
-            let cam = Self::orbit(center, azimuth_deg, elevation_deg, d, fov_deg);
+            let cam = Self::orbit(center, azimuth_deg, elevation_deg, d, fov_deg).projector(aspect);
             points.iter().all(|p| {
-                cam.project_ndc(*p, aspect)
+                cam.project(*p)
                     .is_some_and(|[x, y]| x.abs() <= margin && y.abs() <= margin)
             })
         };
@@ -167,6 +172,35 @@ impl Camera {
             inv_w: 1.0 / w,
             inv_h: 1.0 / h,
         }
+    }
+}
+
+/// A [`Camera`]'s projection to image-plane coordinates, with the basis computed once
+/// ([`Camera::projector`]); the camera-framing search projects every silhouette point of a DEM
+/// for each of its 49 trial distances.
+#[derive(Debug, Clone, Copy)]
+pub struct Projector {
+    eye: [f64; 3],
+    f: [f64; 3],
+    r: [f64; 3],
+    u: [f64; 3],
+    tan_half: f64,
+    aspect: f64,
+}
+
+impl Projector {
+    /// Image-plane coordinates of `p` (see [`Camera::project_ndc`]).
+    #[inline]
+    pub fn project(&self, p: [f64; 3]) -> Option<[f64; 2]> {
+        let v = sub(p, self.eye);
+        let z = dot(v, self.f);
+        if z <= 1e-9 {
+            return None;
+        }
+        Some([
+            dot(v, self.r) / (z * self.tan_half * self.aspect),
+            dot(v, self.u) / (z * self.tan_half),
+        ])
     }
 }
 

@@ -125,8 +125,9 @@ pub fn camera(spec: &CameraSpec, scene: &TerrainScene, aspect: f64, fill: bool) 
     for _ in 0..2 {
         // The projection's extent, and the world offset that centres it (at the target's depth).
         let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        let proj = cam.projector(aspect);
         for p in &points {
-            if let Some([x, y]) = cam.project_ndc(*p, aspect) {
+            if let Some([x, y]) = proj.project(*p) {
                 x0 = x0.min(x);
                 x1 = x1.max(x);
                 y0 = y0.min(y);

@@ -158,21 +158,28 @@ pub fn sky_view_factor(
         })
         .collect();
     let mut data = vec![255u8; w * h];
+    // Row by row, direction by direction and step by step: for one (direction, step) the samples
+    // of a row's points are one contiguous run of a single row of the grid, so the inner loop is
+    // a plain loop over slices that the compiler vectorises. Each point's arithmetic (and its
+    // order of accumulation over the directions) is the per-point loop's: the same bytes out. A
+    // direction's march ends at its first sample off the grid, and the points for which a step
+    // stays on the grid are a range that only shrinks as the step grows. Scratch: four `f64`
+    // rows per rayon task (`try_for_each_init`), nothing per row.
     data.par_chunks_mut(w.max(1))
         .enumerate()
-        .try_for_each(|(j, row)| {
-            if j % 16 == 0 {
-                ctl.checkpoint()?;
-            }
-            for (i, out) in row.iter_mut().enumerate() {
-                let h0 = hs[j * w + i];
-                if h0.is_nan() {
-                    continue;
+        .try_for_each_init(
+            || vec![0.0f64; 4 * w],
+            |scratch, (j, row)| {
+                if j % 16 == 0 {
+                    ctl.checkpoint()?;
                 }
+                let (gx, rest) = scratch.split_at_mut(w);
+                let (gz, rest) = rest.split_at_mut(w);
+                let (best, sum_sin) = rest.split_at_mut(w);
+                let h_row = &hs[j * w..(j + 1) * w];
                 // Central-difference gradient (one-sided at borders and next to nodata).
                 let at = |ci: usize, cj: usize| f64::from(hs[cj * w + ci]);
-                let diff = |lo: Option<f64>, hi: Option<f64>, step: f64| -> f64 {
-                    let c = f64::from(h0);
+                let diff = |c: f64, lo: Option<f64>, hi: Option<f64>, step: f64| -> f64 {
                     match (lo.filter(|v| !v.is_nan()), hi.filter(|v| !v.is_nan())) {
                         (Some(a), Some(b)) => (b - a) / (2.0 * step),
                         (Some(a), None) => (c - a) / step,
@@ -180,41 +187,68 @@ pub fn sky_view_factor(
                         (None, None) => 0.0,
                     }
                 };
-                let gx = diff(
-                    (i > 0).then(|| at(i - 1, j)),
-                    (i + 1 < w).then(|| at(i + 1, j)),
-                    cdx,
-                );
-                let gz = diff(
-                    (j > 0).then(|| at(i, j - 1)),
-                    (j + 1 < h).then(|| at(i, j + 1)),
-                    cdy,
-                );
-                let mut sum_sin = 0.0f64;
+                for i in 0..w {
+                    let c = f64::from(h_row[i]);
+                    gx[i] = diff(
+                        c,
+                        (i > 0).then(|| at(i - 1, j)),
+                        (i + 1 < w).then(|| at(i + 1, j)),
+                        cdx,
+                    );
+                    gz[i] = diff(
+                        c,
+                        (j > 0).then(|| at(i, j - 1)),
+                        (j + 1 < h).then(|| at(i, j + 1)),
+                        cdy,
+                    );
+                }
+                sum_sin.fill(0.0);
+                let sin = |t: f64| t / (1.0 + t * t).sqrt();
                 for &(di, dj, len, steps) in &dirs {
                     // tan τ of the tangent plane along this azimuth.
-                    let tan_t = (gx * di as f64 * cdx + gz * dj as f64 * cdy) / len;
-                    let mut best = tan_t;
+                    for i in 0..w {
+                        best[i] = (gx[i] * di as f64 * cdx + gz[i] * dj as f64 * cdy) / len;
+                    }
                     for &k in &STEPS[..steps] {
-                        let (ci, cj) = (i as isize + di * k as isize, j as isize + dj * k as isize);
-                        if ci < 0 || cj < 0 || ci >= w as isize || cj >= h as isize {
+                        let cj = j as isize + dj * k as isize;
+                        if cj < 0 || cj >= h as isize {
                             break;
                         }
-                        let hk = hs[cj as usize * w + ci as usize];
-                        let t = f64::from(hk - h0) / (k as f64 * len);
-                        // NaN (nodata) fails the compare.
-                        if t > best {
-                            best = t;
+                        // Points i with 0 ≤ i + di·k < w.
+                        let off = di * k as isize;
+                        let (i0, i1) = (
+                            (-off).clamp(0, w as isize) as usize,
+                            (w as isize - off).clamp(0, w as isize) as usize,
+                        );
+                        if i0 >= i1 {
+                            break;
+                        }
+                        let src = &hs[cj as usize * w..(cj as usize + 1) * w];
+                        let src = &src[(i0 as isize + off) as usize..(i1 as isize + off) as usize];
+                        let dist = k as f64 * len;
+                        for ((b, &h0), &hk) in best[i0..i1].iter_mut().zip(&h_row[i0..i1]).zip(src)
+                        {
+                            let t = f64::from(hk - h0) / dist;
+                            // NaN (nodata) fails the compare.
+                            if t > *b {
+                                *b = t;
+                            }
                         }
                     }
-                    let sin = |t: f64| t / (1.0 + t * t).sqrt();
-                    sum_sin += sin(best) - sin(tan_t);
+                    for i in 0..w {
+                        let tan_t = (gx[i] * di as f64 * cdx + gz[i] * dj as f64 * cdy) / len;
+                        sum_sin[i] += sin(best[i]) - sin(tan_t);
+                    }
                 }
-                let svf = 1.0 - sum_sin / DIRS.len() as f64;
-                *out = (255.0 * svf.clamp(0.0, 1.0)).round() as u8;
-            }
-            Ok(())
-        })?;
+                for ((out, &h0), &s) in row.iter_mut().zip(h_row).zip(sum_sin.iter()) {
+                    if !h0.is_nan() {
+                        let svf = 1.0 - s / DIRS.len() as f64;
+                        *out = (255.0 * svf.clamp(0.0, 1.0)).round() as u8;
+                    }
+                }
+                Ok(())
+            },
+        )?;
     Ok(AoMap {
         stride,
         width: w,
