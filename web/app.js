@@ -270,7 +270,10 @@ function pipelineTab(panel, name, spec) {
   }
   function sizeLabel() {
     const [w, h] = fullSize();
-    fullLabel.textContent = `Full size (${w} × ${h} px, slower)`;
+    // What to expect: the last preview's time and how many more pixels full size has.
+    const last = state.lastPreview;
+    const hint = last && w * h > last.px ? `, ${(w * h / last.px).toFixed(1)}× the preview's pixels; the preview took ${(last.ms / 1000).toFixed(1)} s` : ", slower";
+    fullLabel.textContent = `Full size (${w} × ${h} px${hint})`;
   }
   sizeLabel();
 
@@ -491,6 +494,10 @@ function pipelineTab(panel, name, spec) {
       const models = job.outputs.filter((o) => o.name.endsWith(".glb"))
         .sort((a, b) => MODEL_ORDER.indexOf(a.name) - MODEL_ORDER.indexOf(b.name));
       viewer.show(models.map((o) => ({ name: o.name, url: o.url })));
+    }
+    if (state.preview) {
+      state.lastPreview = { px: w * h, ms: (job.timings || []).reduce((a, t) => a + t.ms, 0) };
+      sizeLabel();
     }
     say(status, `Done: ${state.preview ? "preview" : "full size"}, ${w} × ${h} px.`);
     stale(false);

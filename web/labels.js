@@ -73,8 +73,8 @@ const PER = {
     frames: ["Time-lapse frames", "", "0 = none."],
   },
   dust: {
-    stickiness: ["How well dust sticks", "0–1", ""],
-    slipperiness: ["How easily dust slides off", "0–1", ""],
+    stickiness: ["How well dust sticks", "", "The dust amount on an open, level face (1 = fully dusty)."],
+    slipperiness: ["How easily dust slides off", "", ""],
     dust_source: ["Where dust comes from", "", ""],
     exposure: ["Exposure to the air", "", ""],
     exposure_rays: ["Exposure rays", "", ""],

@@ -202,6 +202,8 @@ try {
   assert.equal(await st.locator(".empty-state").isVisible(), false, "the empty state stayed after a result");
   // The preview/full-size choice says which size the downloads are.
   assert.match(await st.locator(".dl-head").textContent(), /preview size \(480 × 320 px\)/);
+  // And full size says what to expect: how many more pixels, how long the preview took.
+  assert.match(await page.textContent("label[for=size-snow-terrain-full]"), /Full size \(900 × 600 px, 3\.5× the preview's pixels; the preview took \d+\.\d s\)/);
 
   // The 3-D viewer: terrain.glb with its snow colours loads; a drag turns it (the canvas
   // changes), a right-drag pans it, "Reset view" frames it again.
