@@ -9,9 +9,17 @@ FROM rust:1-slim-bookworm AS build
 WORKDIR /src
 # The whole workspace: Cargo.toml/Cargo.lock, src/, engine/ (the compute crate), benches/ (named
 # in Cargo.toml, so cargo needs them even for `build`), tests/, openapi.yaml (include_str!-ed by
-# src/api/system.rs) and web/ when present. A stub-manifest layer for dependency caching was left
-# out on purpose: it must mirror every [[bench]] target in the manifests and breaks when one is
-# added; a full release build takes about 4 minutes on 2 cores.
+# src/api/system.rs), build.rs and web/ (the page, and the npm manifests of its third-party
+# code). A stub-manifest layer for dependency caching was left out on purpose: it must mirror
+# every [[bench]] target in the manifests and breaks when one is added; a full release build
+# takes about 4 minutes on 2 cores.
+# Node.js with npm: build.rs installs the studio page's third-party code (three.js, for the 3-D
+# viewer) from the npm registry with `npm ci` (web/package.json + web/package-lock.json) and embeds
+# it in the binary; the runtime image needs no Node. Without npm the build still succeeds and the
+# page says that its 3-D viewer is not installed.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends nodejs npm \
+    && rm -rf /var/lib/apt/lists/*
 COPY . .
 RUN cargo build --release --locked --bin phenomena \
     && install -D -m 0755 target/release/phenomena /out/phenomena

@@ -6,6 +6,8 @@
 import { parseYaml } from "./yaml.js";
 import { initEditor } from "./cloud.js";
 import { buildForm, resolve } from "./form.js";
+import { createViewer } from "./viewer.js";
+import { MAIN, PRESETS, labelOf } from "./labels.js";
 
 /** Per pipeline: the schema of its params, the multipart part name (for labels), the example. */
 const PIPELINES = {
@@ -13,6 +15,8 @@ const PIPELINES = {
     schema: "SnowTerrainParams",
     input: "DEM (GeoTIFF, .asc, .hgt, 16-bit PNG, .npy)",
     example: "dem.asc",
+    empty: "the render, the snow map and a 3-D model of the snowy terrain appear here",
+    models: true,
     images: [["render.png", "render"], ["descriptor.png", "snow-cover map (white = snow)"], ["sweep.png", "parameter sweep"]],
     // An optional orthophoto whose colours replace rock_color (`ortho_asset`).
     ortho: true,
@@ -21,18 +25,23 @@ const PIPELINES = {
     schema: "SnowCoverParams",
     input: "mesh (glTF/GLB, OBJ, STL, PLY)",
     example: "mesh.obj",
+    empty: "the render, a time-lapse and 3-D models of your mesh under its snow appear here",
+    models: true,
     images: [["render.png", "render"], ["timelapse.png", "time-lapse"]],
   },
   cloud: {
     schema: "CloudParams",
     input: "density volume (.npy, NRRD, .vdb)",
     example: "volume.npy",
+    empty: "the render and its light layers (direct, multiple scattering, sky) appear here",
     images: [["render.png", "render"], ["direct.png", "direct light (single scattering)"], ["multiple.png", "multiple scattering"], ["ambient.png", "ambient light"]],
   },
   dust: {
     schema: "DustParams",
     input: "mesh (glTF/GLB, OBJ, STL, PLY)",
     example: "mesh.obj",
+    empty: "the render, the fibre textures, the dust map and a 3-D model with its dust shells appear here",
+    models: true,
     images: [["render.png", "render"], ["fibers.png", "fibre textures (atlas)"], ["dust_amount.png", "dust amount D"]],
     closeUp: true,
   },
@@ -55,20 +64,38 @@ export function el(tag, attrs = {}, ...children) {
   return e;
 }
 
-/** Reads a problem+json (or any) error response into a message. */
+/** Words for the HTTP statuses a page user may meet, when the body says nothing better. */
+const STATUS_WORDS = {
+  400: "The request could not be read", 404: "Not found", 413: "The file is too large for this server",
+  415: "This file type is not supported here", 422: "A parameter is not valid", 429: "The server is busy: try again in a moment",
+  503: "The server is busy or shutting down: try again in a moment",
+};
+
+/** Reads a problem+json (or any) error response into an Error whose message is in words and
+ * whose `detail` line holds the HTTP code and problem type. */
 export async function problem(resp) {
-  return (await problemOf(resp)).message;
+  const p = await problemOf(resp);
+  return Object.assign(new Error(p.message), { detail: p.detail });
 }
 
-/** A problem+json response as { message, field }: "Invalid parameter: wind: missing field …". */
+/** A problem+json response as { message, field, detail }: "A parameter is not valid: wind:
+ * missing field …", detail "HTTP 422 · invalid-parameter". */
 export async function problemOf(resp) {
+  const words = STATUS_WORDS[resp.status] || (resp.status >= 500 ? "The server failed" : "The request was refused");
+  let p = {};
   try {
-    const p = await resp.json();
-    const message = p.title && p.detail ? `${p.title} (${resp.status}): ${p.detail}` : p.detail || p.title || `HTTP ${resp.status}`;
-    return { message, field: p.field };
-  } catch {
-    return { message: `HTTP ${resp.status}` };
-  }
+    p = await resp.json();
+  } catch { /* not JSON: words only */ }
+  const type = typeof p.type === "string" && p.type !== "about:blank" ? ` · ${p.type.split("/").pop()}` : "";
+  const title = p.title || words;
+  const message = p.detail ? `${title}: ${p.detail}` : title;
+  return { message, field: p.field, detail: `HTTP ${resp.status}${type}` };
+}
+
+/** Writes a message into a status line; errors get the class and a small detail line. */
+export function say(node, text, { error = false, detail = "" } = {}) {
+  node.replaceChildren(text, ...(detail ? [" ", el("small", { class: "detail" }, detail)] : []));
+  node.classList.toggle("error", error);
 }
 
 /** Uploads bytes once; the server dedupes by SHA-256, so a second upload returns the same id. */
@@ -78,7 +105,7 @@ export async function uploadAsset(blob, filename) {
     headers: { "content-type": "application/octet-stream" },
     body: blob,
   });
-  if (!resp.ok) throw new Error(await problem(resp));
+  if (!resp.ok) throw await problem(resp);
   return resp.json();
 }
 
@@ -114,7 +141,9 @@ export function followJob(job, onProgress) {
   return { job: done, close: () => source.close() };
 }
 
-/** A drop zone with a file input and an example button; calls onAsset(asset) after uploading. */
+/** A drop zone with a file input and an example button; calls onAsset(asset) after uploading,
+ * onError(message, detail) on a failure. The file input shows the name of a dropped file or the
+ * example too. */
 export function inputBox(label, example, onAsset, onError) {
   const id = `file-${Math.random().toString(36).slice(2)}`;
   const info = el("p", { class: "asset", "aria-live": "polite" }, "No input yet.");
@@ -122,12 +151,20 @@ export function inputBox(label, example, onAsset, onError) {
     info.textContent = `Uploading ${name}…`;
     try {
       const asset = await uploadAsset(blob, name);
-      info.textContent = `${name} — asset ${asset.id.slice(0, 12)}… (${asset.size} bytes)`;
+      info.replaceChildren(el("strong", {}, name), ` — uploaded (${(asset.size / 1024).toFixed(1)} KiB, asset ${asset.id.slice(0, 12)}…)`);
       onAsset(asset);
     } catch (e) {
-      info.textContent = "";
-      onError(e.message);
+      info.textContent = `${name}: not uploaded.`;
+      onError(e.message, e.detail);
     }
+  };
+  /** Puts the file into the file input, so that it names it rather than "No file chosen". */
+  const show = (f) => {
+    try {
+      const dt = new DataTransfer();
+      dt.items.add(f);
+      file.files = dt.files;
+    } catch { /* an old browser: the info line names it */ }
   };
   const file = el("input", {
     type: "file", id, class: "file",
@@ -139,8 +176,13 @@ export function inputBox(label, example, onAsset, onError) {
       type: "button", class: "secondary example",
       onclick: async () => {
         const r = await fetch(`/v1/examples/${example}`);
-        if (!r.ok) return onError(await problem(r));
-        take(await r.blob(), example);
+        if (!r.ok) {
+          const p = await problemOf(r);
+          return onError(p.message, p.detail);
+        }
+        const f = new File([await r.blob()], example);
+        show(f);
+        take(f, example);
       },
     }, `Try the example (${example})`)),
     info);
@@ -150,7 +192,9 @@ export function inputBox(label, example, onAsset, onError) {
     e.preventDefault();
     zone.classList.remove("over");
     const f = e.dataTransfer.files[0];
-    if (f) take(f, f.name);
+    if (!f) return;
+    show(f);
+    take(f, f.name);
   });
   return zone;
 }
@@ -171,22 +215,31 @@ function sweepValues(prop, current) {
   return [...new Set(vals.map((x) => round(Math.min(hi, Math.max(lo, x)))))];
 }
 
-/** A pipeline tab: input, form, preview with orbit, progress, outputs. */
+/** The glTF outputs in the order the viewer offers them (the most telling first). */
+const MODEL_ORDER = ["terrain.glb", "displaced.glb", "dusty.glb", "scene.glb", "snow.glb"];
+
+/** A pipeline tab: input, form, preview with orbit, progress, outputs, 3-D viewer. */
 function pipelineTab(panel, name, spec) {
   const cfg = PIPELINES[name];
   const schema = spec.components.schemas[cfg.schema];
   const cameraSchema = resolve(spec, spec.components.schemas.Camera).properties;
-  const state = { asset: null, timer: 0, follow: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null, ortho: null };
+  const state = { asset: null, timer: 0, follow: null, job: null, seq: 0, resolvedCamera: null, size: null, closeUp: false, far: null, ortho: null, preview: true, shown: false };
   const status = el("p", { class: "status", role: "status", "aria-live": "polite", id: `status-${name}` });
-  const bar = el("progress", { max: 1, value: 0, "aria-label": `${name} progress` });
+  const bar = el("progress", { max: 1, value: 0, "aria-label": `${name} progress`, hidden: true });
+  const cancel = el("button", { type: "button", class: "secondary", id: `cancel-${name}`, disabled: true, title: "Stop the running job" }, "Cancel");
   // After a refused or invalid change the last results stay, marked out of date (dimmed, a
   // label, and the images described by the label and the error) until the next success.
   const staleNote = el("p", { class: "stale-note", id: `stale-${name}`, hidden: true },
     "Out of date: the results below are the last successful ones, not of the current parameters (see the message above).");
+  // Before the first result: what to do, in the box the results will take.
+  const empty = el("div", { class: "empty-state", id: `empty-${name}` },
+    el("p", {}, el("strong", {}, "No result yet."), ` Drop a ${cfg.input.split(" (")[0]} in the box${window.matchMedia("(max-width: 760px)").matches ? " above" : " on the left"}, or press “Try the example”: ${cfg.empty}.`),
+    el("p", { class: "hint" }, "Every change of a setting renders again; the last good result stays until the new one has loaded."));
   const views = el("div", { class: "views" });
-  const downloads = el("ul", { class: "downloads", "aria-label": "Downloads" });
-  const quick = el("input", { type: "checkbox", id: `quick-${name}`, checked: true });
-  const error = (m) => { status.textContent = m; status.classList.add("error"); };
+  const viewer = cfg.models ? createViewer(name) : null;
+  const dlHead = el("h3", { class: "dl-head", hidden: true, id: `downloads-${name}-h` }, "Downloads");
+  const downloads = el("ul", { class: "downloads", "aria-labelledby": dlHead.id });
+  const error = (m, detail) => say(status, m, { error: true, detail });
   const stale = (on) => {
     on = on && views.childElementCount > 0;
     views.classList.toggle("stale", on);
@@ -198,10 +251,50 @@ function pipelineTab(panel, name, spec) {
       else i.removeAttribute("aria-describedby");
     }
   };
-  const refuse = (m) => { error(m); stale(true); };
+  const refuse = (m, detail) => { error(m, detail); stale(true); };
 
-  const { form, values, widgets, mark } = buildForm(spec, schema, name, () => schedule());
-  quick.addEventListener("change", () => schedule());
+  const { form, values, widgets, mark, set: setField } = buildForm(spec, schema, name, () => { sizeLabel(); schedule(); },
+    { main: MAIN[name] || [], labels: (n) => labelOf(name, n) });
+
+  // Preview or full size: says which size the images and the download links are.
+  const sizeBox = el("fieldset", { class: "size-choice" }, el("legend", {}, "Size"));
+  const fullLabel = el("span", {});
+  for (const [key, text] of [["preview", `Preview (at most ${PREVIEW_MAX} px, quick)`], ["full", fullLabel]]) {
+    const r = el("input", { type: "radio", name: `size-${name}`, id: `size-${name}-${key}`, value: key, checked: key === "preview" });
+    r.addEventListener("change", () => { state.preview = key === "preview"; schedule(); });
+    sizeBox.append(el("span", {}, r, " ", el("label", { for: r.id, class: "inline" }, text)));
+  }
+  function fullSize() {
+    const { values: p } = values();
+    return [p.width ?? schema.properties.width.default, p.height ?? schema.properties.height.default];
+  }
+  function sizeLabel() {
+    const [w, h] = fullSize();
+    // What to expect: the last preview's time and how many more pixels full size has.
+    const last = state.lastPreview;
+    const hint = last && w * h > last.px ? `, ${(w * h / last.px).toFixed(1)}× the preview's pixels; the preview took ${(last.ms / 1000).toFixed(1)} s` : ", slower";
+    fullLabel.textContent = `Full size (${w} × ${h} px${hint})`;
+  }
+  sizeLabel();
+
+  // Presets (snow-terrain): a look in one click; it fills the form's fields.
+  let presetBox = null;
+  const presets = PRESETS[name];
+  if (presets) {
+    const touched = [...new Set(presets.flatMap((p) => Object.keys(p.set)))];
+    presetBox = el("fieldset", { class: "presets", id: `presets-${name}` }, el("legend", {}, "Look"));
+    for (const p of presets) {
+      const r = el("input", { type: "radio", name: `preset-${name}`, id: `preset-${name}-${p.key}`, value: p.key, checked: p.key === presets[0].key, "aria-describedby": `preset-${name}-${p.key}-d` });
+      r.addEventListener("change", () => {
+        for (const k of touched) setField(k, p.set[k]);
+        panel.dataset.preset = p.key;
+        schedule();
+      });
+      presetBox.append(el("span", { class: "preset" }, r, " ", el("label", { for: r.id, class: "inline" }, p.label),
+        el("small", { class: "desc", id: `preset-${name}-${p.key}-d` }, p.help)));
+    }
+    panel.dataset.preset = presets[0].key;
+  }
 
   // A parameter sweep (snow-terrain's `sweep`): one numeric parameter over a list of values,
   // rendered into sweep.png beside the render and the snow-cover map.
@@ -211,7 +304,7 @@ function pipelineTab(panel, name, spec) {
     const vp = sweepProp.properties.values;
     const param = el("select", { id: `sweep-${name}-param` },
       el("option", { value: "" }, "(no sweep)"),
-      sweepProp.properties.param.enum.map((v) => el("option", { value: v }, v)));
+      sweepProp.properties.param.enum.map((v) => el("option", { value: v }, `${labelOf(name, v).label} (${v})`)));
     const vals = el("input", { type: "text", id: `sweep-${name}-values`, placeholder: "e.g. 1000, 5000, 20000", inputmode: "decimal", "aria-describedby": `sweep-${name}-d` });
     param.addEventListener("change", () => {
       // Suggest values around the parameter's current value; the user edits them.
@@ -224,10 +317,11 @@ function pipelineTab(panel, name, spec) {
     });
     vals.addEventListener("change", () => schedule());
     sweep = {
-      box: el("fieldset", { class: "field sweep" }, el("legend", {}, "Parameter sweep"),
-        el("label", { for: param.id }, "param"), param,
-        el("label", { for: vals.id }, `values (${vp.minItems}–${vp.maxItems}, comma-separated)`), vals,
-        el("span", { class: "desc", id: `sweep-${name}-d` }, sweepProp.description)),
+      box: el("details", { class: "sweep-box" }, el("summary", {}, "Compare values side by side (sweep)"),
+        el("fieldset", { class: "field sweep" }, el("legend", {}, "Parameter sweep"),
+          el("label", { for: param.id }, "Setting to vary"), param,
+          el("label", { for: vals.id }, `Values (${vp.minItems}–${vp.maxItems}, comma-separated)`), vals,
+          el("span", { class: "desc", id: `sweep-${name}-d` }, "One render per value, side by side in sweep.png."))),
       value() {
         const v = vals.value.split(/[,\s]+/).filter(Boolean).map(Number);
         return param.value && v.length >= vp.minItems && v.length <= vp.maxItems && v.every(Number.isFinite) ? { param: param.value, values: v } : undefined;
@@ -254,9 +348,8 @@ function pipelineTab(panel, name, spec) {
   function params() {
     const { values: p, bad } = values();
     if (bad.length) return { bad };
-    if (quick.checked) {
-      const w = p.width ?? schema.properties.width.default;
-      const h = p.height ?? schema.properties.height.default;
+    if (state.preview) {
+      const [w, h] = fullSize();
       const k = Math.min(1, PREVIEW_MAX / Math.max(w, h));
       p.width = Math.max(16, Math.round(w * k));
       p.height = Math.max(16, Math.round(h * k));
@@ -276,16 +369,37 @@ function pipelineTab(panel, name, spec) {
     if (state.asset) state.timer = setTimeout(run, 350);
   }
 
+  const running = (job) => {
+    state.job = job;
+    cancel.disabled = !job;
+    panel.dataset.running = job ? job.id : "";
+  };
+  cancel.addEventListener("click", async () => {
+    const job = state.job;
+    if (!job) return;
+    cancel.disabled = true;
+    say(status, "Canceling…");
+    const r = await fetch(job.url, { method: "DELETE" });
+    if (!r.ok && r.status !== 409) {
+      const p = await problemOf(r);
+      error(`Could not cancel: ${p.message}`, p.detail);
+    }
+  });
+
   async function run() {
     clearTimeout(state.timer);
     if (!state.asset) return;
     const seq = ++state.seq;
     if (state.follow) state.follow.close();
-    status.classList.remove("error");
+    running(null);
     const { params: p, bad } = params();
-    if (bad) return refuse(`Not sent: fix ${bad.join(", ")} (a number out of its range, or an incomplete value).`);
+    if (bad) {
+      const names = bad.map((n) => labelOf(name, n).label).join(", ");
+      return refuse(`Not sent: fix ${names} (a number out of its range, or an incomplete value).`);
+    }
     mark(null);
-    status.textContent = "Submitting…";
+    say(status, "Submitting…");
+    bar.hidden = false;
     bar.value = 0;
     const resp = await fetch(`/v1/${name}`, {
       method: "POST",
@@ -297,31 +411,42 @@ function pipelineTab(panel, name, spec) {
       if (seq !== state.seq) return;
       if (pr.field) mark(pr.field.replace(/^params\./, "").split(/[.[]/)[0]);
       panel.dataset.status = "rejected";
-      return refuse(pr.message);
+      return refuse(pr.message, pr.detail);
     }
     const job = await resp.json();
+    if (seq !== state.seq) return;
     panel.dataset.job = job.id;
     delete panel.dataset.status;
+    running(job);
     state.follow = followJob(job, (f, stage) => {
       if (seq !== state.seq) return;
       bar.value = f;
       panel.dataset.progress = String(f);
-      status.textContent = `${stage} — ${Math.round(f * 100)} %`;
+      if (!status.textContent.startsWith("Canceling")) say(status, `${stage} — ${Math.round(f * 100)} %`);
     });
     let done;
     try {
       done = await state.follow.job;
     } catch (e) {
-      return refuse(e.message);
+      if (seq === state.seq) running(null);
+      return seq === state.seq ? refuse(e.message) : undefined;
     }
     if (seq !== state.seq) return;
-    await show(done, p);
+    running(null);
+    await show(done, p, seq);
   }
 
-  async function show(job, sent) {
+  /** Loads an image; resolves when it can be shown (or failed: then it shows its alt text). */
+  const loaded = (img) => (img.decode ? img.decode() : Promise.resolve()).catch(() => {});
+
+  async function show(job, sent, seq) {
+    if (job.status === "canceled") {
+      panel.dataset.status = "canceled";
+      return refuse(views.childElementCount ? "Canceled. The results below are from the last finished render." : "Canceled. Change a setting or press “Try the example” to render again.");
+    }
     if (job.status !== "succeeded") {
       panel.dataset.status = job.status;
-      return refuse(job.error ? `${job.error.title}: ${job.error.detail}` : `job ${job.status}`);
+      return refuse(job.error ? `The render failed: ${job.error.detail || job.error.title}` : `The job ended: ${job.status}`, job.error ? job.error.title : "");
     }
     if (job.params && job.params.camera) state.resolvedCamera = job.params.camera;
     if (closeUp && state.size === null) {
@@ -335,14 +460,9 @@ function pipelineTab(panel, name, spec) {
       closeUp.disabled = !state.size;
     }
     const close = state.closeUp && sent.camera && sent.camera.distance;
-    status.textContent = `Done (job ${job.id.slice(0, 12)}…).`;
-    views.replaceChildren();
-    downloads.replaceChildren();
-    for (const out of job.outputs) {
-      downloads.append(el("li", {}, el("a", { class: "button secondary", href: out.url, download: out.name }, `${out.name} (${(out.size / 1024).toFixed(1)} KiB)`)));
-    }
+    const figs = [];
     if (close && state.far) {
-      views.append(el("figure", { class: "far" }, el("img", { src: state.far, alt: "far view (the last render without the close-up)", "data-output": "far" }), el("figcaption", {}, "far view")));
+      figs.push(el("figure", { class: "far" }, el("img", { src: state.far, alt: "far view (the last render without the close-up)", "data-output": "far" }), el("figcaption", {}, "far view")));
     }
     for (const [img, caption] of cfg.images) {
       const out = job.outputs.find((o) => o.name === img);
@@ -356,9 +476,30 @@ function pipelineTab(panel, name, spec) {
       });
       if (main) orbit(image);
       const cap = main && close ? `close-up render (${sent.camera.distance} m from the dustiest point in view)` : caption;
-      views.append(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
-        el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "full size")])));
+      figs.push(el("figure", { class: main ? "main" : img === "sweep.png" ? "wide" : undefined }, image,
+        el("figcaption", {}, cap, main ? null : [" · ", el("a", { href: out.url, target: "_blank", rel: "noopener" }, "open")])));
     }
+    // Replace the old images only once the new ones have loaded: the result area keeps its box.
+    await Promise.all(figs.map((f) => loaded(f.querySelector("img"))));
+    if (seq !== state.seq) return;
+    views.replaceChildren(...figs);
+    empty.hidden = true;
+    const [w, h] = [sent.width ?? schema.properties.width.default, sent.height ?? schema.properties.height.default];
+    dlHead.hidden = false;
+    dlHead.textContent = state.preview
+      ? `Downloads — preview size (${w} × ${h} px); choose “Full size” for full-size files`
+      : `Downloads — full size (${w} × ${h} px)`;
+    downloads.replaceChildren(...job.outputs.map((out) => el("li", {}, el("a", { class: "button secondary", href: out.url, download: out.name }, `${out.name} (${(out.size / 1024).toFixed(1)} KiB)`))));
+    if (viewer) {
+      const models = job.outputs.filter((o) => o.name.endsWith(".glb"))
+        .sort((a, b) => MODEL_ORDER.indexOf(a.name) - MODEL_ORDER.indexOf(b.name));
+      viewer.show(models.map((o) => ({ name: o.name, url: o.url })));
+    }
+    if (state.preview) {
+      state.lastPreview = { px: w * h, ms: (job.timings || []).reduce((a, t) => a + t.ms, 0) };
+      sizeLabel();
+    }
+    say(status, `Done: ${state.preview ? "preview" : "full size"}, ${w} × ${h} px.`);
     stale(false);
     panel.dataset.status = job.status;
   }
@@ -416,10 +557,11 @@ function pipelineTab(panel, name, spec) {
   let orthoBox = null;
   if (cfg.ortho) {
     const id = `ortho-${name}`;
-    const info = el("span", { class: "asset", "aria-live": "polite" }, " none (rock_color)");
+    const none = " none: the rock colour setting is used";
+    const info = el("span", { class: "asset", "aria-live": "polite" }, none);
     const clear = el("button", {
       type: "button", class: "secondary", hidden: true,
-      onclick: () => { state.ortho = null; file.value = ""; info.textContent = " none (rock_color)"; clear.hidden = true; schedule(); },
+      onclick: () => { state.ortho = null; file.value = ""; info.textContent = none; clear.hidden = true; schedule(); },
     }, "Remove");
     const file = el("input", {
       type: "file", id, class: "file", accept: ".tif,.tiff,.png,.jpg,.jpeg,image/png,image/jpeg,image/tiff",
@@ -429,28 +571,30 @@ function pipelineTab(panel, name, spec) {
         info.textContent = ` uploading ${f.name}…`;
         try {
           state.ortho = await uploadAsset(f, f.name);
-          info.textContent = ` ${f.name} (${state.ortho.size} bytes)`;
+          info.textContent = ` ${f.name} (${(state.ortho.size / 1024).toFixed(1)} KiB)`;
           panel.dataset.ortho = state.ortho.id;
           clear.hidden = false;
           schedule();
         } catch (err) {
           info.textContent = "";
-          error(err.message);
+          error(err.message, err.detail);
         }
       },
     });
-    orthoBox = el("div", { class: "field" },
-      el("label", { for: id }, "Orthophoto for the rock colour (GeoTIFF, PNG, JPEG; optional):"), el("br"),
-      file, info, " ", clear);
+    orthoBox = el("details", { class: "ortho" }, el("summary", {}, "Colour the rock from an aerial photo (optional)"),
+      el("div", { class: "field" },
+        el("label", { for: id }, "Orthophoto (GeoTIFF, PNG, JPEG) covering the DEM:"), el("br"),
+        file, info, " ", clear));
   }
   panel.append(
     el("h2", {}, document.getElementById(panel.getAttribute("aria-labelledby")).textContent),
     el("div", { class: "layout" },
-      el("div", { class: "area-in" }, input, orthoBox,
-        el("div", { class: "field check" }, quick, " ", el("label", { for: `quick-${name}` }, `Quick preview (at most ${PREVIEW_MAX} px)`)),
-        sweep ? sweep.box : null),
-      el("div", { class: "area-out" }, bar, status, staleNote, closeUp ? el("div", { class: "toolbar" }, closeUp) : null, views, downloads),
-      el("div", { class: "area-more" }, form)));
+      el("div", { class: "area-in" }, input, presetBox, sizeBox, orthoBox, sweep ? sweep.box : null),
+      el("div", { class: "area-out" },
+        el("div", { class: "run-line" }, bar, cancel), status, staleNote,
+        closeUp ? el("div", { class: "toolbar" }, closeUp) : null,
+        el("div", { class: "result" }, empty, views), viewer ? viewer.node : null, dlHead, downloads),
+      el("div", { class: "area-more" }, el("h3", { class: "form-head" }, "Settings"), form)));
 }
 
 function tabs() {

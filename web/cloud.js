@@ -4,7 +4,7 @@
 // (versions are immutable on the server; undo is rendering or editing an older one). Every tool
 // works from the keyboard too: a crosshair on the focused image (keys in the help text below it).
 
-import { $, el, problem, uploadAsset, followJob, inputBox } from "./app.js";
+import { $, el, problem, say, followJob, inputBox } from "./app.js";
 
 /** The size of the edited view, pixels (edits are sent with this view). */
 const VIEW_W = 400;
@@ -26,6 +26,22 @@ const KEYS = [
   "Home", "Space", "Enter", "C", "Escape",
 ];
 
+/** Version kinds in words. */
+const KINDS = { upload: "upload", "sun-color": "sun colour", ambient: "ambient", "sun-direction": "shadow drag", set: "settings" };
+/** The state's fields in words, in the table's order (others follow under their own names). */
+const STATE_LABELS = [
+  ["kappa", "Density κ"],
+  ["sun_direction", "Sun"],
+  ["sun_color", "Sun colour"],
+  ["ambient", "Ambient colour"],
+  ["ambient_scale", "Ambient strength"],
+  ["scattering", "Light bounces"],
+  ["albedo", "Albedo"],
+  ["anisotropy", "Forward scattering"],
+  ["background", "Background"],
+  ["step", "Ray step"],
+];
+
 export function initEditor(panel, spec) {
   const cam = spec.components.schemas.Camera.properties;
   const st = {
@@ -35,10 +51,15 @@ export function initEditor(panel, spec) {
     camera: { azimuth_deg: cam.azimuth_deg.default, elevation_deg: 12 },
     tool: "sun-color",
     busy: false,
+    /** The last render seen of each version (the upload has no render_url of its own). */
+    thumbs: {},
   };
   const status = el("p", { class: "status", role: "status", "aria-live": "polite" });
-  const bar = el("progress", { max: 1, value: 0, "aria-label": "cloud editor progress" });
-  const img = el("img", { alt: "The current version of the cloud", width: VIEW_W, height: VIEW_H, id: "editor-image" });
+  const bar = el("progress", { max: 1, value: 0, "aria-label": "cloud editor progress", hidden: true });
+  // No image before a scene (no broken-image icon): the stage shows what to do instead.
+  const img = el("img", { alt: "The current version of the cloud", width: VIEW_W, height: VIEW_H, id: "editor-image", hidden: true });
+  const emptyStage = el("div", { class: "empty-state stage-empty", id: "editor-empty" },
+    el("p", {}, el("strong", {}, "No cloud yet."), " Drop a density volume (.npy, NRRD, .vdb) in the box, or press “Try the example”. Its render appears here; then paint on it or drag a shadow."));
   const canvas = el("canvas", {
     width: VIEW_W, height: VIEW_H, tabindex: 0, id: "editor-canvas",
     "aria-label": "Cloud image: paint or drag on it with the selected tool, with the pointer or the keyboard",
@@ -55,9 +76,26 @@ export function initEditor(panel, spec) {
     el("kbd", {}, "C"), " applies the stroke; shadow drag: ", el("kbd", {}, "Space"), " or ", el("kbd", {}, "Enter"), " marks the shadowed spot, again marks where its shadow should be; ",
     el("kbd", {}, "Esc"), " discards; ", el("kbd", {}, "Ctrl+Z"), " / ", el("kbd", {}, "Ctrl+Shift+Z"), " undo and redo.");
   const ctx = canvas.getContext("2d");
-  const versions = el("ul", { class: "versions", "aria-label": "Versions" });
+  const versions = el("ul", { class: "versions", "aria-label": "Versions" }, el("li", { class: "hint" }, "No versions yet: the upload becomes version 1, every edit a new one."));
   const count = el("span", { id: "version-count" }, "0");
-  const stateBox = el("pre", { class: "state", "aria-label": "Renderer state of the current version" });
+  const stateBox = el("pre", { class: "state", "aria-label": "Renderer state of the current version (JSON)" });
+  const stateTable = el("table", { class: "state-table", id: "state-table" },
+    el("caption", {}, "The current version's renderer state"),
+    el("tbody", {}, el("tr", {}, el("td", { colspan: 2, class: "hint" }, "No scene yet: the state of the shown version appears here."))));
+  const stateRaw = el("details", { class: "state-raw", hidden: true }, el("summary", {}, "As JSON"), stateBox);
+  // Before/after: two versions' renders stacked, the "after" one clipped at the slider.
+  const cmpA = el("select", { id: "compare-before", "aria-label": "Before: version" });
+  const cmpB = el("select", { id: "compare-after", "aria-label": "After: version" });
+  const cmpImgA = el("img", { alt: "Before", class: "cmp-before", width: VIEW_W, height: VIEW_H });
+  const cmpImgB = el("img", { alt: "After", class: "cmp-after", width: VIEW_W, height: VIEW_H });
+  const cmpSlider = el("input", { type: "range", id: "compare-slider", min: 0, max: 100, value: 50, "aria-label": "Before/after divider, % from the left" });
+  const cmpBox = el("section", { class: "compare", id: "compare", hidden: true, "aria-labelledby": "compare-h" },
+    el("h3", { id: "compare-h" }, "Compare two versions"),
+    el("div", { class: "toolbar" }, el("label", { for: cmpA.id }, "Before"), cmpA, el("label", { for: cmpB.id }, "After"), cmpB),
+    el("div", { class: "cmp-stage" }, cmpImgA, cmpImgB, el("div", { class: "cmp-line", "aria-hidden": "true" })),
+    cmpSlider,
+    el("p", { class: "hint" }, "Left of the line: before; right: after. Each version as rendered when it was made."));
+  const ambScale = el("input", { type: "number", id: "ambient-scale", min: 0, max: 100, step: "any", value: 1, "aria-describedby": "ambient-scale-d" });
   const sunColor = el("input", { type: "color", id: "sun-color", value: "#ffa060" });
   const ambColor = el("input", { type: "color", id: "ambient-color", value: "#4060ff" });
   const undoBtn = el("button", { type: "button", class: "secondary", id: "undo", onclick: undo, "aria-keyshortcuts": "Control+Z", title: "Undo (Ctrl+Z)" }, "Undo");
@@ -75,9 +113,13 @@ export function initEditor(panel, spec) {
     el("option", { value: "single" }, "single (the paper)"),
     el("option", { value: "multiple" }, "multiple"));
   const albedoIn = el("input", { type: "number", id: "set-albedo", min: 0, max: 1, step: 0.01, value: 1 });
-  const applyBtn = el("button", { type: "button", id: "set-apply", onclick: applySettings }, "Apply settings");
-  const error = (m) => { status.textContent = m; status.classList.add("error"); };
-  const note = (m) => { status.textContent = m; status.classList.remove("error"); };
+  const applyBtn = el("button", { type: "button", id: "set-apply", onclick: applySettings, disabled: true }, "Apply settings");
+  const settingInputs = [kappaIn, azIn, elIn, sunIn, modeIn, albedoIn, applyBtn];
+  for (const i of settingInputs) i.disabled = true;
+  undoBtn.disabled = true;
+  redoBtn.disabled = true;
+  const error = (m, detail) => say(status, m instanceof Error ? m.message : m, { error: true, detail: detail || (m && m.detail) || "" });
+  const note = (m) => say(status, m);
 
   const tool = (value, label, extra) => {
     const id = `tool-${value}`;
@@ -87,6 +129,7 @@ export function initEditor(panel, spec) {
 
   const view = () => ({ width: VIEW_W, height: VIEW_H, camera: { ...st.camera } });
   const version = (n) => st.scene && st.scene.versions.find((v) => v.version === n);
+  const imageOf = (v) => v && (v.render_url || st.thumbs[v.version]);
 
   async function refresh() {
     const r = await fetch(st.scene.url);
@@ -96,13 +139,20 @@ export function initEditor(panel, spec) {
       el("button", {
         type: "button", "aria-current": v.version === st.current ? "true" : undefined,
         disabled: v.status !== "ready", onclick: () => select(v.version, true),
-      }, `v${v.version} · ${v.kind}${v.parent ? ` (from v${v.parent})` : ""} · ${v.status}`))));
+      }, imageOf(v) ? el("img", { src: imageOf(v), alt: "", width: 64, height: 48, class: "thumb", loading: "lazy" }) : el("span", { class: "thumb" }),
+      el("span", {}, `v${v.version} · ${KINDS[v.kind] || v.kind}${v.parent ? ` (from v${v.parent})` : ""}`, v.status === "ready" ? null : ` · ${v.status}`)))));
+    compareOptions();
     count.textContent = String(st.scene.versions.length);
     panel.dataset.versions = String(st.scene.versions.length);
     panel.dataset.current = String(st.current);
     const cur = version(st.current);
     stateBox.textContent = cur && cur.state ? JSON.stringify(cur.state, null, 1) : "";
-    if (cur && cur.state) showSettings(cur.state);
+    stateRaw.hidden = !(cur && cur.state);
+    if (cur && cur.state) {
+      showSettings(cur.state);
+      stateTable.tBodies[0].replaceChildren(...stateRows(cur.state));
+    }
+    for (const i of settingInputs) i.disabled = false;
     undoBtn.disabled = !(cur && cur.parent);
     redoBtn.disabled = st.redo.length === 0;
   }
@@ -153,11 +203,70 @@ export function initEditor(panel, spec) {
     return f.job;
   }
 
-  function showImage(url) {
+  /** Shows a render once it has loaded (the old one stays until then: no flash, no jump). */
+  async function showImage(url) {
+    const next = new Image();
+    next.src = url;
+    await next.decode().catch(() => {});
     img.src = url;
+    img.hidden = false;
+    emptyStage.hidden = true;
     panel.dataset.image = url;
     ctx.clearRect(0, 0, VIEW_W, VIEW_H);
   }
+
+  /** The state as readable rows: names in words, angles for the sun, swatches for colours. */
+  function stateRows(state) {
+    const num = (x) => (typeof x === "number" ? String(Number(x.toPrecision(4))) : typeof x === "string" ? x : x === null ? "none" : JSON.stringify(x));
+    const swatch = (rgb) => el("span", {}, el("span", { class: "swatch", style: `background:${hex(rgb)}`, "aria-hidden": "true" }), ` ${hex(rgb)} (linear ${rgb.map(num).join(", ")})`);
+    const rows = [];
+    const row = (k, label, value) => rows.push(el("tr", { "data-key": k }, el("th", { scope: "row" }, label), el("td", {}, value)));
+    const seen = new Set();
+    for (const [k, label] of STATE_LABELS) {
+      if (!(k in state)) continue;
+      seen.add(k);
+      const v = state[k];
+      if (k === "sun_direction" && Array.isArray(v)) {
+        const elv = Math.asin(Math.max(-1, Math.min(1, v[1]))) * 180 / Math.PI;
+        const az = ((Math.atan2(v[0], -v[2]) * 180 / Math.PI) + 360) % 360;
+        row(k, label, `from ${Math.round(az)}° (compass), ${Math.round(elv)}° above the horizon`);
+      } else if (k === "kappa") {
+        row(k, label, `${num(v)}${state.kappa_auto ? " (chosen from the volume)" : " (given)"}`);
+      } else if (Array.isArray(v) && v.length === 3 && v.every((x) => typeof x === "number") && /color|ambient/.test(k)) {
+        row(k, label, swatch(v));
+      } else row(k, label, v !== null && typeof v === "object" ? JSON.stringify(v) : num(v));
+    }
+    for (const [k, v] of Object.entries(state)) {
+      if (seen.has(k) || k === "kappa_auto") continue;
+      row(k, k.replace(/_/g, " "), v !== null && typeof v === "object" ? JSON.stringify(v) : num(v));
+    }
+    return rows;
+  }
+
+  function compareOptions() {
+    const ready = st.scene.versions.filter((v) => v.status === "ready" && imageOf(v));
+    cmpBox.hidden = ready.length < 2;
+    if (ready.length < 2) return;
+    const cur = version(st.current);
+    const keepA = cmpA.dataset.user && ready.some((v) => String(v.version) === cmpA.value) ? cmpA.value : String((cur && cur.parent) || ready[ready.length - 2].version);
+    const keepB = cmpB.dataset.user && ready.some((v) => String(v.version) === cmpB.value) ? cmpB.value : String(st.current ?? ready[ready.length - 1].version);
+    const opts = (keep) => ready.map((v) => el("option", { value: v.version, selected: String(v.version) === keep }, `v${v.version} · ${KINDS[v.kind] || v.kind}`));
+    cmpA.replaceChildren(...opts(keepA));
+    cmpB.replaceChildren(...opts(keepB));
+    compareShow();
+  }
+  function compareShow() {
+    const a = version(Number(cmpA.value));
+    const b = version(Number(cmpB.value));
+    if (imageOf(a) && cmpImgA.getAttribute("src") !== imageOf(a)) cmpImgA.src = imageOf(a);
+    if (imageOf(b) && cmpImgB.getAttribute("src") !== imageOf(b)) cmpImgB.src = imageOf(b);
+    const x = Number(cmpSlider.value);
+    cmpImgB.style.clipPath = `inset(0 0 0 ${x}%)`;
+    cmpBox.style.setProperty("--split", `${x}%`);
+  }
+  cmpA.addEventListener("change", () => { cmpA.dataset.user = "1"; compareShow(); });
+  cmpB.addEventListener("change", () => { cmpB.dataset.user = "1"; compareShow(); });
+  cmpSlider.addEventListener("input", compareShow);
 
   async function render() {
     st.busy = true;
@@ -170,9 +279,10 @@ export function initEditor(panel, spec) {
       });
       if (!r.ok) return error(await problem(r));
       const done = await job(r);
-      if (done.status !== "succeeded") return error(done.error ? done.error.detail : `render ${done.status}`);
+      if (done.status !== "succeeded") return error(done.error ? `The render failed: ${done.error.detail}` : `The render ended: ${done.status}`);
       const out = done.outputs.find((o) => o.name === "render.png");
-      showImage(out.url);
+      st.thumbs[st.current] ??= out.url;
+      await showImage(out.url);
       note(`Showing v${st.current}.`);
     } finally {
       st.busy = false;
@@ -221,13 +331,13 @@ export function initEditor(panel, spec) {
       st.scene = await r2.json();
       const nv = version(v.version);
       if (!nv || nv.status !== "ready") {
-        error(nv && nv.error ? `The edit failed: ${nv.error.detail}` : "The edit failed.");
+        error(nv && nv.error ? `The edit failed: ${nv.error.detail}` : "The edit failed.", nv && nv.error ? nv.error.title : "");
         ctx.clearRect(0, 0, VIEW_W, VIEW_H);
         return;
       }
       st.current = nv.version;
       st.redo = [];
-      showImage(nv.render_url);
+      await showImage(nv.render_url);
       note(`v${nv.version} (${kind}) is ready.`);
     } finally {
       st.busy = false;
@@ -289,7 +399,8 @@ export function initEditor(panel, spec) {
       if (!d.pixels.size) return false;
       const pixels = [...d.pixels].map((i) => [i % VIEW_W, Math.floor(i / VIEW_W)]);
       const color = st.tool === "sun-color" ? sunColor.value : ambColor.value;
-      edit(st.tool, { strokes: [{ color, pixels }] });
+      const extra = st.tool === "ambient" && ambScale.value !== "" && Number(ambScale.value) !== 1 ? { ambient_scale: Number(ambScale.value) } : {};
+      edit(st.tool, { strokes: [{ color, pixels }], ...extra });
       return true;
     }
     if (st.tool === "sun-direction") {
@@ -457,15 +568,28 @@ export function initEditor(panel, spec) {
     if (!r.ok) return error(await problem(r));
     st.scene = await r.json();
     st.redo = [];
+    bar.hidden = false;
     panel.dataset.scene = st.scene.id;
     await select(1, true);
   }, error);
 
+  const row = (id, label, unit, ...controls) => el("div", { class: "set-row" },
+    el("label", { for: id }, label, unit ? el("span", { class: "unit" }, ` (${unit})`) : null), el("span", {}, ...controls));
   panel.append(
     el("h2", {}, "Cloud editor"),
     el("p", {}, "Create a scene from a volume, then edit it on the image: paint where the sunlit cloud should take a colour (the sun colour follows by least squares), paint ambient colour into the shadows, or drag from a shadowed spot to where its shadow should be (the sun moves). Every edit is a new version; undo selects an older one."),
     el("div", { class: "layout" },
-      el("div", { class: "area-in" }, input),
+      el("div", { class: "area-in" }, input,
+        el("fieldset", { class: "settings" }, el("legend", {}, "Light and density"),
+          row("set-kappa", "Density κ", "extinction per unit length", kappaIn, kappaHow),
+          row("set-sun-az", "Sun direction", "compass °", azIn),
+          row("set-sun-el", "Sun height", "° above the horizon", elIn),
+          row("set-sun-color", "Sun colour", "", sunIn),
+          row("set-scattering", "Light bounces", "", modeIn),
+          row("set-albedo", "Albedo", "0–1", albedoIn),
+          el("p", {}, applyBtn, el("span", { class: "hint" }, " Applies the changed values as a new version.")),
+          row("ambient-scale", "Ambient brush strength", "×", ambScale),
+          el("span", { class: "desc", id: "ambient-scale-d" }, "How strongly a painted ambient colour lights the cloud (ambient_scale, sent with the ambient brush's strokes; 1 = as painted)."))),
       el("div", { class: "area-out" },
         el("div", { class: "toolbar" },
           el("fieldset", {}, el("legend", {}, "Tool"),
@@ -474,19 +598,13 @@ export function initEditor(panel, spec) {
             tool("sun-direction", "Shadow drag"),
             tool("orbit", "Orbit camera"))),
         bar, status,
-        el("div", { class: "stage" }, img, canvas, cursor), help,
-        el("fieldset", { class: "settings" }, el("legend", {}, "Settings"),
-          el("label", { for: "set-kappa" }, "Extinction κ "), kappaIn, kappaHow, el("br"),
-          el("label", { for: "set-sun-az" }, "Sun azimuth (°) "), azIn, " ",
-          el("label", { for: "set-sun-el" }, "elevation (°) "), elIn, el("br"),
-          el("label", { for: "set-sun-color" }, "Sun colour "), sunIn, el("br"),
-          el("label", { for: "set-scattering" }, "Scattering "), modeIn, " ",
-          el("label", { for: "set-albedo" }, "albedo "), albedoIn, " ", applyBtn)),
+        el("div", { class: "stage" }, img, emptyStage, canvas, cursor), help,
+        cmpBox),
       el("div", { class: "area-more" },
         el("h3", {}, "Versions (", count, ")"),
         el("div", { class: "toolbar" }, undoBtn, redoBtn),
         versions,
-        el("h3", {}, "State"), stateBox)));
+        el("h3", {}, "State"), stateTable, stateRaw)));
   $("#sun-color", panel).setAttribute("aria-label", "Sun colour");
   $("#ambient-color", panel).setAttribute("aria-label", "Ambient colour");
 }

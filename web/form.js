@@ -359,26 +359,43 @@ function cameraWidget(ctx, prop, id, label) {
   };
 }
 
-/** The whole form of a params schema. */
-export function buildForm(spec, schema, idBase, onChange) {
+/** The whole form of a params schema: the `main` names up front in `labels`' words (label,
+ * unit, help; the API name small), the rest under a closed "Advanced" section. */
+export function buildForm(spec, schema, idBase, onChange, { main = [], labels = (n) => ({ label: n, unit: "", help: "" }) } = {}) {
   const form = el("form", { class: "params", onsubmit: (e) => e.preventDefault(), novalidate: true });
+  const mainBox = el("div", { class: "main-fields" });
+  const moreBox = el("div", { class: "advanced-fields" });
+  const advanced = el("details", { class: "advanced", id: `advanced-${idBase}` }, el("summary", {}, "Advanced settings"), moreBox);
+  form.append(mainBox, advanced);
   const read = {};
   const ctx = { spec, onChange };
-  for (const [name, prop0] of Object.entries(schema.properties || {})) {
-    if (OUTSIDE.has(name)) continue;
-    const prop = resolve(spec, prop0);
+  const names = Object.keys(schema.properties || {}).filter((n) => !OUTSIDE.has(n));
+  const ordered = [...main.filter((n) => names.includes(n)), ...names.filter((n) => !main.includes(n))];
+  let more = 0;
+  for (const name of ordered) {
+    const prop = resolve(spec, schema.properties[name]);
     const id = `p-${idBase}-${name}`;
     const w = widget(ctx, name, prop, id);
     if (!w) continue;
-    const desc = el("span", { class: "desc", id: `${id}-d` }, prop.description || "");
+    const { label, unit, help } = labels(name);
+    const desc = el("span", { class: "desc", id: `${id}-d` }, help || prop.description || "");
+    if (help && prop.description) desc.title = prop.description;
     if (w.input) w.input.setAttribute("aria-describedby", desc.id);
-    const range = prop.minimum !== undefined && prop.maximum !== undefined ? ` (${prop.minimum}–${prop.maximum})` : "";
+    const range = prop.minimum !== undefined && prop.maximum !== undefined ? ` · ${prop.minimum}–${prop.maximum}` : "";
+    const api = el("code", { class: "api", title: "The parameter's name in the API" }, name + range);
+    const text = [label, unit ? el("span", { class: "unit" }, ` (${unit})`) : null];
     const field = w.inline
-      ? el("div", { class: "field check", "data-name": name }, w.input, " ", el("label", { for: id }, name), desc)
-      : el("div", { class: "field", "data-name": name }, el("label", { for: w.input ? w.input.id : id }, name + range), w.node || w.input, desc);
-    form.append(field);
+      ? el("div", { class: "field check", "data-name": name }, w.input, " ", el("label", { for: id }, text), " ", api, desc)
+      : el("div", { class: "field", "data-name": name }, el("label", { for: w.input ? w.input.id : id }, text), " ", api, w.node || w.input, desc);
+    if (main.includes(name)) mainBox.append(field);
+    else {
+      moreBox.append(field);
+      more++;
+    }
     read[name] = { w, def: prop.default, field };
   }
+  advanced.firstChild.textContent = `Advanced settings (${more})`;
+  advanced.hidden = more === 0;
   form.addEventListener("input", (e) => { if (e.target.type !== "text") onChange(); });
   form.addEventListener("change", () => onChange());
   return {
@@ -397,9 +414,24 @@ export function buildForm(spec, schema, idBase, onChange) {
       }
       return { values: out, bad };
     },
-    /** Marks the field a problem+json names. */
+    /** Marks the field a problem+json names (opening "Advanced" when it is there). */
     mark(name) {
       for (const [n, { field }] of Object.entries(read)) field.classList.toggle("invalid", n === name);
+      if (name && read[name] && moreBox.contains(read[name].field)) advanced.open = true;
+    },
+    /** Sets a scalar field (a preset); undefined = back to its default. No change event. */
+    set(name, v) {
+      const r = read[name];
+      if (!r) return;
+      const x = v === undefined ? r.def : v;
+      if (r.w.set) return r.w.set(x);
+      const i = r.w.input;
+      if (i.type === "checkbox") i.checked = x === true;
+      else i.value = x === undefined || x === null ? "" : String(x);
+    },
+    /** The current value of a field as it would be sent (undefined = its default). */
+    get(name) {
+      return read[name] && read[name].w.get();
     },
   };
 }

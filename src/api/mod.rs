@@ -56,6 +56,7 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("get", "/openapi.yaml"),
     ("get", "/"),
     ("get", "/web/{file}"),
+    ("get", "/web/vendor/{path}"),
     ("get", "/v1/examples/{name}"),
     ("post", "/v1/assets"),
     ("post", "/v1/clouds"),
@@ -90,6 +91,7 @@ pub fn app(state: AppState) -> Router {
         .route("/openapi.yaml", get(system::openapi))
         .route("/", get(web::index))
         .route("/web/{file}", get(web::asset))
+        .route("/web/vendor/{*path}", get(web::vendor))
         .route("/v1/examples/{name}", get(web::example))
         .route("/v1/assets", post(assets::upload))
         .route("/v1/assets/{id}", get(assets::get))

@@ -18,8 +18,17 @@
 // version, a changed image, the same request fields as the pointer's) and do a shadow drag (the
 // sun direction changes); the dust example runs with its render, fibre atlas and amount map, and the close-up
 // toggle changes the image with the far view beside it; every tab at 390×844 (no horizontal
-// overflow) and 1366×768. Fails on any console error (but the deliberate 422's failed load),
-// page error, or request to anything but the server.
+// overflow) and 1366×768. Issue 23: before any upload every tab shows its empty state (no image,
+// Cancel/Undo/Redo/Apply disabled); each 3-D viewer loads its GLB (terrain.glb with its snow
+// colours, displaced/scene/snow.glb, dusty.glb) and a drag changes its canvas, a pan and "Reset
+// view" too; the layer toggles (flakes, snow, dust shells) change the canvas; the Spring and
+// Paper looks change the form and the render; Cancel ends a running full-size job (`canceled`);
+// the result area keeps its size through a re-render; errors in words, the HTTP code in a
+// detail line; the editor's thumbnails, state table and before/after slider; axe-core finds no
+// serious or critical violation on any tab, before an upload and with results; with
+// /web/vendor.json saying "not installed" the viewer says so in words. Fails on any console
+// error (but the deliberate 422's failed load), page error, or request to anything but the
+// server (and the page's own blob: URLs).
 
 import assert from "node:assert/strict";
 import { createRequire } from "node:module";
@@ -56,7 +65,8 @@ function dem() {
 
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
-  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"],
+  // WebGL (the 3-D viewers) through SwiftShader, as in gltf_viewer.mjs.
+  args: ["--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking"],
 });
 try {
   const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
@@ -71,16 +81,62 @@ try {
   page.on("pageerror", (e) => problems.push(`page error: ${e.message}`));
   // The cloud editor's edit requests, to compare the keyboard's with the pointer's.
   const edits = [];
+  // The snow-terrain submissions' params, as sent.
+  const submitted = [];
   page.on("request", (r) => {
-    if (!r.url().startsWith(base) && !r.url().startsWith("data:")) problems.push(`request beyond the server: ${r.url()}`);
+    // blob: URLs are the page's own (three.js decodes a GLB's embedded textures through them).
+    if (!r.url().startsWith(base) && !r.url().startsWith("data:") && !r.url().startsWith(`blob:${base}`)) problems.push(`request beyond the server: ${r.url()}`);
+    if (r.method() === "POST" && r.url() === `${base}/v1/snow-terrain`) submitted.push(JSON.parse(r.postData()).params);
     const m = r.method() === "POST" && r.url().match(/\/edits\/([a-z-]+)$/);
     if (m) edits.push({ kind: m[1], body: JSON.parse(r.postData()) });
   });
+  // STUDIO_WEB_DIR (while editing the page): its files come from that directory instead of the
+  // server's embedded copies, so a change needs no rebuild.
+  if (process.env.STUDIO_WEB_DIR) {
+    await page.route(/\/web\/[a-z]+\.(js|css)$/, (r) => r.fulfill({
+      contentType: r.request().url().endsWith(".css") ? "text/css" : "text/javascript",
+      body: fs.readFileSync(path.join(process.env.STUDIO_WEB_DIR, new URL(r.request().url()).pathname.slice(5))),
+    }));
+  }
   const shot = (name) => page.screenshot({ path: path.join(shots, `${name}.png`), fullPage: true });
   const bytesOf = (url) => page.evaluate(async (u) => {
     const b = new Uint8Array(await (await fetch(u)).arrayBuffer());
     return Array.from(b.slice(0, 8)).concat([b.length]);
   }, url);
+  // The 3-D viewer of a tab: ready with this model (of the panel's current job), and a digest
+  // of its canvas's pixels.
+  const viewerReady = (tab, model) => page.waitForFunction(([t, m]) => {
+    const v = document.getElementById(`viewer-${t}`);
+    const p = document.getElementById(`panel-${t}`);
+    return v.dataset.state === "ready" && v.dataset.model === m && v.dataset.url && v.dataset.url.includes(p.dataset.job);
+  }, [tab, model]);
+  const canvasHash = (tab) => page.evaluate(async (t) => {
+    const c = document.querySelector(`#viewer-${t} canvas`);
+    const d = await crypto.subtle.digest("SHA-256", new TextEncoder().encode(c.toDataURL("image/png")));
+    return Array.from(new Uint8Array(d)).map((x) => x.toString(16).padStart(2, "0")).join("");
+  }, tab);
+  /** Drags across the middle of a tab's 3-D view (left button: orbit; `button: "right"`: pan). */
+  const dragViewer = async (tab, dx, dy, button = "left") => {
+    const b = await page.locator(`#viewer-${tab} canvas`).boundingBox();
+    await page.mouse.move(b.x + b.width / 2, b.y + b.height / 2);
+    await page.mouse.down({ button });
+    for (let i = 1; i <= 5; i++) await page.mouse.move(b.x + b.width / 2 + (dx * i) / 5, b.y + b.height / 2 + (dy * i) / 5);
+    await page.mouse.up({ button });
+  };
+  // axe-core (from npm, web/package.json's dev dependencies) on the visible tab: no serious or
+  // critical violation.
+  const axeSource = fs.readFileSync(path.join(pwDir, "node_modules/axe-core/axe.min.js"), "utf8");
+  const axeCheck = async (tab, when) => {
+    await page.click(`#tab-${tab}`);
+    if (!(await page.evaluate(() => !!window.axe))) await page.evaluate(axeSource);
+    const bad = await page.evaluate(async () => {
+      const r = await window.axe.run(document, { resultTypes: ["violations"] });
+      return r.violations.filter((v) => ["serious", "critical"].includes(v.impact))
+        .map((v) => `${v.impact} ${v.id}: ${v.help} — ${v.nodes.slice(0, 4).map((n) => n.target.join(" ")).join(" | ")}`);
+    });
+    assert.deepEqual(bad, [], `axe-core on the ${tab} tab (${when})`);
+  };
+  const TABS = ["snow-terrain", "snow-cover", "cloud", "editor", "dust"];
   const hashOf = (url) => page.evaluate(async (u) => {
     const d = await crypto.subtle.digest("SHA-256", await (await fetch(u)).arrayBuffer());
     return Array.from(new Uint8Array(d)).map((x) => x.toString(16).padStart(2, "0")).join("");
@@ -99,6 +155,36 @@ try {
   await shot("01-loaded");
   log("page loaded");
 
+  // Before any upload: every tab says what to do, shows no image (no broken-image icon), its
+  // 3-D view waits, Cancel is disabled; the editor's Undo, Redo and Apply are disabled, its
+  // versions and state say there is nothing yet. axe-core finds nothing serious on any tab.
+  for (const tab of ["snow-terrain", "snow-cover", "cloud", "dust"]) {
+    await page.click(`#tab-${tab}`);
+    const p = page.locator(`#panel-${tab}`);
+    assert.ok(await p.locator(".empty-state").isVisible(), `${tab}: no empty state`);
+    assert.match(await p.locator(".empty-state").textContent(), /Try the example/);
+    assert.equal(await p.locator("img").count(), 0, `${tab}: images before any upload`);
+    assert.equal(await p.locator(`#cancel-${tab}`).isDisabled(), true, `${tab}: Cancel enabled with nothing running`);
+    assert.equal(await p.locator("progress").isVisible(), false, `${tab}: an empty progress bar`);
+    if (tab !== "cloud") assert.equal(await page.getAttribute(`#viewer-${tab}`, "data-state"), "empty");
+    await shot(`01-empty-${tab}`);
+  }
+  await page.click("#tab-editor");
+  const edEmpty = page.locator("#panel-editor");
+  assert.ok(await edEmpty.locator("#editor-empty").isVisible(), "the editor has no empty state");
+  assert.equal(await page.locator("#editor-image").isVisible(), false, "the editor shows an image before a scene");
+  for (const b of ["#undo", "#redo", "#set-apply"]) assert.equal(await page.isDisabled(b), true, `${b} is enabled before a scene`);
+  assert.match(await edEmpty.locator("#state-table").textContent(), /No scene yet/);
+  assert.equal(await edEmpty.locator("pre.state").isVisible(), false, "an empty State box");
+  assert.match(await edEmpty.locator(".versions").textContent(), /No versions yet/);
+  assert.equal(await page.locator("#compare").isVisible(), false, "a comparison with nothing to compare");
+  await shot("01-empty-editor");
+  for (const tab of TABS) await axeCheck(tab, "before any upload");
+  await page.click("#tab-snow-terrain");
+  log("empty states on every tab; axe-core: no serious or critical violation");
+  // The "Advanced" sections hold most fields the steps below set: open them.
+  await page.evaluate(() => document.querySelectorAll("details.advanced, details.sweep-box").forEach((d) => { d.open = true; }));
+
   // 2. Snow on terrain: upload a DEM, see a render; change a parameter, see it change.
   const st = page.locator("#panel-snow-terrain");
   await st.locator(".dropzone input[type=file]").setInputFiles({ name: "cone.asc", mimeType: "text/plain", buffer: dem() });
@@ -110,6 +196,40 @@ try {
   const firstJob = await st.getAttribute("data-job");
   const firstSrc = await st.locator("img[data-output='render.png']").getAttribute("src");
   await shot("02-terrain-first");
+  // The file input names the file that came in.
+  assert.equal(await st.locator(".dropzone input[type=file]").evaluate((i) => i.files[0] && i.files[0].name), "cone.asc");
+  assert.match(await st.locator(".dropzone .asset").textContent(), /cone\.asc — uploaded/);
+  assert.equal(await st.locator(".empty-state").isVisible(), false, "the empty state stayed after a result");
+  // The preview/full-size choice says which size the downloads are.
+  assert.match(await st.locator(".dl-head").textContent(), /preview size \(480 × 320 px\)/);
+  // And full size says what to expect: how many more pixels, how long the preview took.
+  assert.match(await page.textContent("label[for=size-snow-terrain-full]"), /Full size \(900 × 600 px, 3\.5× the preview's pixels; the preview took \d+\.\d s\)/);
+
+  // The 3-D viewer: terrain.glb with its snow colours loads; a drag turns it (the canvas
+  // changes), a right-drag pans it, "Reset view" frames it again.
+  await viewerReady("snow-terrain", "terrain.glb");
+  await page.locator("#viewer-snow-terrain").scrollIntoViewIfNeeded();
+  const v0 = await canvasHash("snow-terrain");
+  await shot("02b-terrain-3d");
+  await dragViewer("snow-terrain", -120, 30);
+  const v1 = await canvasHash("snow-terrain");
+  assert.notEqual(v1, v0, "dragging the 3-D view changed nothing");
+  await dragViewer("snow-terrain", 60, 0, "right");
+  assert.notEqual(await canvasHash("snow-terrain"), v1, "a right-drag (pan) changed nothing");
+  await page.mouse.move(10, 10);
+  await page.click("#viewer-snow-terrain-reset");
+  assert.equal(await canvasHash("snow-terrain"), v0, "Reset view did not return to the first view");
+  // Snow colours: the model's own vertex colours, snow (white) and rock, both shown.
+  const tones = JSON.parse(await page.getAttribute("#viewer-snow-terrain", "data-colors"));
+  assert.ok(tones.snow > 0 && tones.other > 0, `terrain.glb shows no snow and rock colours: ${JSON.stringify(tones)}`);
+  log(`3-D terrain: drag, pan and reset change the canvas; vertex colours: ${tones.snow} snow, ${tones.other} rock`);
+  // No layout shift while a render is replaced: the result area keeps its box.
+  await page.evaluate(() => {
+    const r = document.querySelector("#panel-snow-terrain .result");
+    const b = r.getBoundingClientRect();
+    window.__box = { first: [b.width, b.height], seen: [] };
+    new ResizeObserver((es) => es.forEach((e) => window.__box.seen.push([e.contentRect.width, e.contentRect.height]))).observe(r);
+  });
   await st.locator("input[name=snowline]").fill("700");
   await page.waitForFunction((j) => {
     const p = document.getElementById("panel-snow-terrain");
@@ -119,6 +239,13 @@ try {
   const secondSrc = await st.locator("img[data-output='render.png']").getAttribute("src");
   assert.notEqual(secondSrc, firstSrc, "the render did not change job");
   assert.notEqual(await hashOf(secondSrc), await hashOf(firstSrc), "the snowline changed nothing in the image");
+  const rbox = await page.evaluate(() => {
+    const b = document.querySelector("#panel-snow-terrain .result").getBoundingClientRect();
+    return { ...window.__box, last: [b.width, b.height] };
+  });
+  assert.deepEqual(rbox.last, rbox.first, `the result area changed size on a re-render: ${JSON.stringify(rbox)}`);
+  const b0 = JSON.stringify([Math.round(rbox.first[0]), Math.round(rbox.first[1])]);
+  assert.ok(rbox.seen.every(([w, h]) => Math.abs(w - rbox.first[0]) < 1 && Math.abs(h - rbox.first[1]) < 1), `the result area jumped during the re-render (${b0}): ${JSON.stringify(rbox.seen)}`);
   await shot("03-terrain-snowline");
   log("snow-terrain re-rendered on a parameter change");
 
@@ -200,6 +327,10 @@ try {
   await page.waitForFunction(() => document.getElementById("panel-snow-terrain").dataset.status === "rejected");
   const refused = await st.locator("p.status").textContent();
   assert.match(refused, /422/, `no readable 422: ${refused}`);
+  assert.match(await st.locator("p.status .detail").textContent(), /^HTTP 422/, "the HTTP code is not in the detail line");
+  const headline = await st.locator("p.status").evaluate((p) => p.firstChild.textContent);
+  assert.match(headline, /^[A-Z][a-z]+ [a-z]+/, `the message does not start in words: ${headline}`);
+  assert.ok(!/\(?422\)?/.test(headline), `the HTTP code is in the message itself: ${headline}`);
   assert.match(refused, /camera|eye|target/, `the 422 does not say what is wrong: ${refused}`);
   assert.equal(await st.locator(".field[data-name=camera]").evaluate((f) => f.classList.contains("invalid")), true, "the camera field is not marked");
   // The last good images stay, marked out of date and described by the error.
@@ -231,6 +362,59 @@ try {
   const tif = await bytesOf(tifHref);
   assert.deepEqual(tif.slice(0, 4), [0x49, 0x49, 0x2a, 0x00], "snow_cover.tif is not a little-endian TIFF");
   log("downloads are a PNG and a TIFF");
+
+  // Presets: "Spring" fills the form with its values and changes the result; "Paper" is the
+  // engine's paper preset; "Winter" goes back.
+  const before = await st.getAttribute("data-job");
+  const winterSrc = await st.locator("img[data-output='render.png']").getAttribute("src");
+  await page.click("label[for=preset-snow-terrain-spring]");
+  assert.equal(await st.locator("input[name=snowline_quantile]").inputValue(), "0.6");
+  assert.equal(await st.locator("input[name=sun_strength]").inputValue(), "0.9");
+  const springJob = await nextJob("panel-snow-terrain", before);
+  assert.ok(Math.abs(springJob.params.sun_strength - 0.9) < 1e-6, JSON.stringify(springJob.params));
+  assert.equal(springJob.params.slope_end_deg, 45);
+  const springSrc = await st.locator("img[data-output='render.png']").getAttribute("src");
+  assert.notEqual(await hashOf(springSrc), await hashOf(winterSrc), "the spring preset changed nothing in the render");
+  await shot("03f-terrain-spring");
+  await page.click("label[for=preset-snow-terrain-paper]");
+  assert.equal(await st.locator("select[name=preset]").inputValue(), "paper");
+  assert.equal(await st.locator("input[name=sun_strength]").inputValue(), "0.5", "the spring values stayed under the paper preset");
+  const paperJob = await nextJob("panel-snow-terrain", springJob.id);
+  assert.equal(paperJob.params.preset, "paper");
+  assert.equal(submitted.at(-1).preset, "paper");
+  assert.equal(submitted.at(-1).sun_strength, undefined, "spring's values were sent with the paper preset");
+  assert.notEqual(await hashOf(await st.locator("img[data-output='render.png']").getAttribute("src")), await hashOf(springSrc), "the paper preset changed nothing");
+  await shot("03g-terrain-paper");
+  await page.click("label[for=preset-snow-terrain-winter]");
+  const winterJob = await nextJob("panel-snow-terrain", paperJob.id);
+  assert.equal(winterJob.params.preset, "winter");
+  assert.equal(submitted.at(-1).preset, undefined, "winter is the default: not sent");
+  log("presets: spring and paper change the form and the render");
+
+  // Cancel: a heavy full-size render is canceled from its button.
+  await st.locator("input[name=samples]").fill("16");
+  await st.locator("input[name=width]").fill("4096");
+  await st.locator("input[name=height]").fill("4096");
+  await page.check("#size-snow-terrain-full");
+  await page.waitForFunction((j) => {
+    const p = document.getElementById("panel-snow-terrain");
+    return p.dataset.job !== j && !document.getElementById("cancel-snow-terrain").disabled;
+  }, winterJob.id);
+  const heavy = await st.getAttribute("data-job");
+  await page.click("#cancel-snow-terrain");
+  await page.waitForFunction(() => document.getElementById("panel-snow-terrain").dataset.status === "canceled");
+  const canceled = await page.evaluate(async (i) => (await fetch(`/v1/jobs/${i}`)).json(), heavy);
+  assert.equal(canceled.status, "canceled");
+  assert.equal(canceled.params.width, 4096, "the full-size choice did not send the full width");
+  assert.match(await st.locator("p.status").textContent(), /Canceled/);
+  assert.equal(await page.isDisabled("#cancel-snow-terrain"), true, "Cancel stays enabled after the job ended");
+  await shot("03h-terrain-canceled");
+  log("cancel ended a running 4096 × 4096 job");
+  await st.locator("input[name=samples]").fill("");
+  await st.locator("input[name=width]").fill("");
+  await st.locator("input[name=height]").fill("");
+  await page.check("#size-snow-terrain-preview");
+  await nextJob("panel-snow-terrain", heavy);
 
   // 3. Snow cover: the example mesh; the progress bar moves and finishes.
   await page.click("#tab-snow-cover");
@@ -275,6 +459,38 @@ try {
   assert.equal(scJob.params.frames, 3);
   await shot("04-snow-cover");
   log("snow-cover ran with a snowfall schedule, a wind and a 3-frame time-lapse");
+  assert.equal(await sc.locator(".dropzone input[type=file]").evaluate((i) => i.files[0] && i.files[0].name), "mesh.obj", "the example's name is not in the file input");
+
+  // Its 3-D viewer: displaced.glb (the mesh under its snow, with the flakes) first; a drag
+  // turns it; the flakes and the snow layer toggle (each changes the canvas); the other two
+  // models load too.
+  await viewerReady("snow-cover", "displaced.glb");
+  await page.locator("#viewer-snow-cover").scrollIntoViewIfNeeded();
+  assert.deepEqual((await page.getAttribute("#viewer-snow-cover", "data-layers")).split(" ").sort(), ["flakes", "snow"]);
+  const c0 = await canvasHash("snow-cover");
+  await shot("04d-snow-cover-3d");
+  await page.uncheck("#viewer-snow-cover-layer-flakes");
+  const c1 = await canvasHash("snow-cover");
+  assert.notEqual(c1, c0, "hiding the flakes changed nothing");
+  await page.uncheck("#viewer-snow-cover-layer-snow");
+  const c2 = await canvasHash("snow-cover");
+  assert.notEqual(c2, c1, "hiding the snow layer changed nothing");
+  await shot("04e-snow-cover-3d-bare");
+  await page.check("#viewer-snow-cover-layer-snow");
+  await page.check("#viewer-snow-cover-layer-flakes");
+  assert.equal(await canvasHash("snow-cover"), c0, "showing the layers again did not restore the view");
+  await dragViewer("snow-cover", 100, -40);
+  assert.notEqual(await canvasHash("snow-cover"), c0, "dragging the snow-cover 3-D view changed nothing");
+  const models = await page.locator("#viewer-snow-cover-model option").evaluateAll((o) => o.map((x) => x.value));
+  assert.deepEqual(models, ["displaced.glb", "scene.glb", "snow.glb"]);
+  for (const m of ["scene.glb", "snow.glb"]) {
+    await page.selectOption("#viewer-snow-cover-model", m);
+    await viewerReady("snow-cover", m);
+    await shot(`04f-snow-cover-3d-${m.replace(".glb", "")}`);
+  }
+  await page.selectOption("#viewer-snow-cover-model", "displaced.glb");
+  await viewerReady("snow-cover", "displaced.glb");
+  log("snow-cover 3-D: displaced, scene and snow models; flakes and snow toggles change the canvas");
 
   // The cloud tab with structured parameters: layers as a list, a background colour (off by
   // default, so absent = transparent), a sun-colour triple, a world box.
@@ -358,6 +574,21 @@ try {
   assert.notDeepEqual(stateV3.sun_direction, stateV2.sun_direction, "the sun direction did not change");
   log(`sun direction ${JSON.stringify(stateV2.sun_direction)} -> ${JSON.stringify(stateV3.sun_direction)}`);
   await shot("07-editor-shadow");
+  // Thumbnails, the state as a table, before/after between v2 and v3.
+  assert.equal(await ed.locator(".versions img.thumb").count(), 3, "a thumbnail per version");
+  assert.match(await ed.locator("#state-table tr[data-key=sun_direction]").textContent(), /from \d+° \(compass\), -?\d+° above the horizon/);
+  assert.match(await ed.locator("#state-table tr[data-key=kappa]").textContent(), /Density κ/);
+  assert.ok(await page.locator("#compare").isVisible(), "no before/after comparison with three versions");
+  assert.equal(await page.inputValue("#compare-before"), "2");
+  assert.equal(await page.inputValue("#compare-after"), "3");
+  await page.waitForFunction(() => [...document.querySelectorAll("#compare img")].every((i) => i.complete && i.naturalWidth > 0));
+  const clipAt = () => page.locator("#compare img.cmp-after").evaluate((i) => i.style.clipPath);
+  assert.equal(await clipAt(), "inset(0px 0px 0px 50%)");
+  await page.locator("#compare-slider").fill("20");
+  assert.equal(await clipAt(), "inset(0px 0px 0px 20%)");
+  await page.locator("#compare").scrollIntoViewIfNeeded();
+  await shot("07b-editor-compare");
+  log("editor: thumbnails, state table, before/after slider");
 
   // Undo: back to v2 and an image of v2.
   const v3Image = await ed.getAttribute("data-image");
@@ -388,6 +619,7 @@ try {
   // Ambient brush: a blue stroke into the cloud makes version 4 with a new image.
   await page.check("#tool-ambient");
   await page.fill("#ambient-color", "#2040ff");
+  await page.fill("#ambient-scale", "1.5");
   [x0, y0] = px(160, 150);
   await page.mouse.move(x0, y0);
   await page.mouse.down();
@@ -407,6 +639,7 @@ try {
   const v4Image = await ed.getAttribute("data-image");
   await page.waitForFunction(() => document.getElementById("editor-image").complete);
   assert.notEqual(await hashOf(v4Image), await hashOf(redoImage), "the ambient edit changed no pixel");
+  assert.equal(edits.filter((e) => e.kind === "ambient").pop().body.ambient_scale, 1.5, "the ambient strength was not sent");
   await shot("08c-editor-ambient");
   log("ambient stroke made version 4");
 
@@ -508,6 +741,17 @@ try {
   await du.locator("img[data-output='fibers.png']").waitFor();
   await shot("09-dust");
   log("dust rendered with its fibre atlas");
+  await viewerReady("dust", "dusty.glb");
+  await page.locator("#viewer-dust").scrollIntoViewIfNeeded();
+  assert.match(await page.getAttribute("#viewer-dust", "data-layers"), /dust/);
+  const d0 = await canvasHash("dust");
+  await shot("09a-dust-3d");
+  await page.uncheck("#viewer-dust-layer-dust");
+  assert.notEqual(await canvasHash("dust"), d0, "hiding the dust shells changed nothing");
+  await page.check("#viewer-dust-layer-dust");
+  await dragViewer("dust", -80, 20);
+  assert.notEqual(await canvasHash("dust"), d0, "dragging the dust 3-D view changed nothing");
+  log("dust 3-D: the shells toggle and a drag change the canvas");
 
   // The close-up: the camera at a tenth of the mesh's size; the far view stays beside it.
   const farJob = await du.getAttribute("data-job");
@@ -536,6 +780,28 @@ try {
     }
     log(`${tag} ${w}×${h}: no horizontal overflow on any tab`);
   }
+  for (const tab of TABS) await axeCheck(tab, "with results");
+  log("axe-core: no serious or critical violation on any tab with results");
+
+  // A server built without npm: /web/vendor.json says so, and the viewer says in words that it
+  // is not installed and how to install it; the rest of the tab works.
+  const bare = await browser.newPage({ viewport: { width: 1280, height: 900 } });
+  bare.setDefaultTimeout(TIMEOUT);
+  bare.on("console", (m) => { if (m.type() === "error") problems.push(`console error (no viewer): ${m.text()}`); });
+  bare.on("pageerror", (e) => problems.push(`page error (no viewer): ${e.message}`));
+  await bare.route("**/web/vendor.json", (r) => r.fulfill({ contentType: "application/json", body: JSON.stringify({ installed: false, packages: {}, files: [], reason: "PHENOMENA_NPM=off", install: "Install Node.js with npm (e.g. apt-get install -y nodejs npm), then rebuild: cargo build --release" }) }));
+  await bare.goto(base + "/");
+  await bare.waitForSelector("body[data-ready=true]");
+  await bare.locator("#panel-snow-terrain button.example").click();
+  await bare.waitForFunction(() => document.getElementById("panel-snow-terrain").dataset.status === "succeeded");
+  await bare.waitForFunction(() => document.getElementById("viewer-snow-terrain").dataset.state === "unavailable");
+  const why = await bare.locator("#viewer-snow-terrain .viewer-msg").textContent();
+  assert.match(why, /not installed/);
+  assert.match(why, /npm/);
+  assert.equal(await bare.locator("#viewer-snow-terrain canvas").count(), 0);
+  await bare.screenshot({ path: path.join(shots, "11-no-viewer.png"), fullPage: true });
+  await bare.close();
+  log(`without npm: "${why}"`);
 } finally {
   await browser.close();
 }

@@ -9,11 +9,6 @@ use serde_json::{json, Value};
 
 use crate::common::Server;
 
-/// Pinned browser driver; installed on first use into `target/browser-node/`.
-const PLAYWRIGHT: &str = "playwright-core@1.65.1";
-/// Pinned three.js, the glTF viewer of the GLB test; installed beside the driver.
-const THREE: &str = "three@0.170.0";
-
 #[tokio::test]
 async fn page_files_are_served_with_their_types() {
     let s = Server::start(|_| {}).await;
@@ -32,6 +27,8 @@ async fn page_files_are_served_with_their_types() {
         ("yaml.js", "text/javascript; charset=utf-8"),
         ("cloud.js", "text/javascript; charset=utf-8"),
         ("form.js", "text/javascript; charset=utf-8"),
+        ("viewer.js", "text/javascript; charset=utf-8"),
+        ("labels.js", "text/javascript; charset=utf-8"),
         ("style.css", "text/css; charset=utf-8"),
     ] {
         let r = s
@@ -53,6 +50,9 @@ async fn page_files_are_served_with_their_types() {
     for bad in [
         "/web/nope.js",
         "/web/..%2FCargo.toml",
+        "/web/vendor/three/package.json",
+        "/web/vendor/../Cargo.toml",
+        "/web/vendor/three/..%2F..%2FCargo.toml",
         "/v1/examples/nope.npy",
     ] {
         let r = s.client.get(s.url(bad)).send().await.unwrap();
@@ -62,6 +62,91 @@ async fn page_files_are_served_with_their_types() {
             "application/problem+json",
             "{bad}"
         );
+    }
+    s.stop().await;
+}
+
+/// The third-party files (issue 23): `/web/vendor.json` names what the build installed from
+/// `web/package-lock.json`, and each file `web/vendor.txt` lists is served under `/web/vendor/`
+/// with its type, byte for byte what `npm ci` installed (the lock's version of three.js). Built
+/// without npm (`PHENOMENA_NPM=off`), the list is empty and says why and how to install.
+#[tokio::test]
+async fn vendor_files_are_served_from_the_lock_file() {
+    let s = Server::start(|_| {}).await;
+    let r = s
+        .client
+        .get(s.url("/web/vendor.json"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["content-type"], "application/json");
+    let v: Value = r.json().await.unwrap();
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let listed: Vec<String> = std::fs::read_to_string(root.join("web/vendor.txt"))
+        .unwrap()
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+        .map(String::from)
+        .collect();
+    if v["installed"] == false {
+        // A build without npm: nothing served, and the reason and the remedy in words.
+        assert_eq!(v["files"], json!([]), "{v}");
+        assert!(v["reason"].as_str().is_some_and(|r| !r.is_empty()), "{v}");
+        assert!(v["install"].as_str().unwrap().contains("npm"), "{v}");
+        let r = s
+            .client
+            .get(s.url(&format!("/web/vendor/{}", listed[0])))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 404);
+        s.stop().await;
+        return;
+    }
+    let lock: Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("web/package-lock.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        v["packages"]["three"], lock["packages"]["node_modules/three"]["version"],
+        "{v}"
+    );
+    assert_eq!(v["files"], json!(listed));
+    let modules = playwright_dir().join("node_modules");
+    for f in &listed {
+        let r = s
+            .client
+            .get(s.url(&format!("/web/vendor/{f}")))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200, "{f}");
+        let media = if f.ends_with(".js") {
+            "text/javascript; charset=utf-8"
+        } else {
+            "text/plain; charset=utf-8"
+        };
+        assert_eq!(r.headers()["content-type"], media, "{f}");
+        assert_eq!(r.headers()["x-content-type-options"], "nosniff", "{f}");
+        let on_disk = std::fs::read(modules.join(f)).unwrap();
+        assert_eq!(r.bytes().await.unwrap().as_ref(), &on_disk[..], "{f}");
+    }
+    // The import map of the page names files that are served.
+    let html = s
+        .client
+        .get(s.url("/"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    for path in [
+        "/web/vendor/three/build/three.module.min.js",
+        "/web/vendor/three/examples/jsm/",
+    ] {
+        assert!(html.contains(path), "{path}");
     }
     s.stop().await;
 }
@@ -157,27 +242,39 @@ async fn examples_run_through_their_pipelines() {
     s.stop().await;
 }
 
+/// The browser tests' Node packages (playwright-core, three.js, axe-core): `npm ci` of the page's
+/// own `web/package.json` and lock file, dev dependencies included, into `target/browser-node/`
+/// (again whenever the lock file changes).
 fn playwright_dir() -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/browser-node");
-    let have = |pkg: &str| {
-        let (name, version) = pkg.rsplit_once('@').unwrap();
-        std::fs::read_to_string(dir.join("node_modules").join(name).join("package.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<Value>(&t).ok())
-            .is_some_and(|v| v["version"] == version)
-    };
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let dir = root.join("target/browser-node");
+    let lock = std::fs::read(root.join("web/package-lock.json")).unwrap();
+    let stamp = dir.join("installed.lock.json");
     // One process at a time: the studio and viewer tests run in parallel.
     static INSTALL: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
-    if !(have(PLAYWRIGHT) && have(THREE)) {
+    if std::fs::read(&stamp).ok().as_deref() != Some(&lock[..]) {
         std::fs::create_dir_all(&dir).unwrap();
+        let _ = std::fs::remove_file(&stamp);
+        std::fs::copy(root.join("web/package.json"), dir.join("package.json")).unwrap();
+        std::fs::copy(
+            root.join("web/package-lock.json"),
+            dir.join("package-lock.json"),
+        )
+        .unwrap();
         let status = Command::new("npm")
-            .args(["install", "--no-audit", "--no-fund", "--silent", "--prefix"])
-            .arg(&dir)
-            .args([PLAYWRIGHT, THREE])
+            .current_dir(&dir)
+            .args([
+                "ci",
+                "--no-audit",
+                "--no-fund",
+                "--ignore-scripts",
+                "--loglevel=error",
+            ])
             .status()
-            .expect("npm is needed to install playwright-core and three");
-        assert!(status.success(), "npm install {PLAYWRIGHT} {THREE} failed");
+            .expect("npm is needed to install playwright-core, three and axe-core");
+        assert!(status.success(), "npm ci in {} failed", dir.display());
+        std::fs::write(&stamp, &lock).unwrap();
     }
     dir
 }
@@ -186,9 +283,13 @@ fn playwright_dir() -> PathBuf {
 /// and mouse orbit, the sweep sheet, a readable 422, structured parameters (schedule, wind,
 /// layers, colours, bounds), the snow-cover progress bar, the cloud editor's sun-colour and
 /// ambient strokes, shadow drag, undo and redo, the dust close-up, phone and laptop layouts, a
-/// download — no console errors, no request beyond the server. Screenshots go to
-/// `target/browser/`. Needs Debian's `chromium` (`apt-get install -y chromium`, done by
-/// `.ci/run`) and npm (playwright-core is installed into `target/browser-node/` on first use).
+/// download; and (issue 23) the empty states, the 3-D viewers (load, drag, pan, reset, layer
+/// toggles), the looks, Cancel, no layout shift on a re-render, the editor's thumbnails, state
+/// table and before/after slider, axe-core on every tab, the viewer's words without npm — no
+/// console errors, no request beyond the server. Screenshots of every tab go to
+/// `target/browser/`. Needs Debian's `chromium` (`apt-get install -y chromium`, done by `.ci/run`)
+/// and npm (playwright-core, three.js and axe-core are installed from `web/package-lock.json` into
+/// `target/browser-node/` on first use).
 /// Alone: `cargo test --test it web::studio_in_headless_chromium -- --nocapture`.
 #[test]
 fn studio_in_headless_chromium() {
