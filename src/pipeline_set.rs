@@ -1,9 +1,17 @@
 //! The boundary between the job system and the engine: a set of named pipelines the server can
 //! run. The shipped set is [`EnginePipelines`]; tests may build the server with their own set (for
 //! example a pipeline that sleeps in stages) to exercise the job mechanics.
+//!
+//! Parameters are parsed once on each side of the job boundary: a submission's
+//! [`PipelineSet::params`] returns them [`Validated`] (canonical JSON for request keys and job
+//! records, plus the engine's typed form that the input check reuses), and a worker parses the
+//! record's JSON once to run.
 
-use phenomena_engine::pipeline::{self, Limits, PipelineKind, RunFailure};
-use phenomena_engine::{Canceled, Control, InputError, Output, ParamError};
+use std::sync::Arc;
+
+use phenomena_engine::params::Limits;
+use phenomena_engine::registry::{self, PipelineKind, RunFailure};
+use phenomena_engine::{Canceled, Control, InputError, Output, ParamError, Refusal};
 
 /// Why a run produced no outputs.
 #[derive(Debug, thiserror::Error)]
@@ -16,21 +24,43 @@ pub enum RunError {
     #[error(transparent)]
     Param(#[from] ParamError),
     /// The pipeline ran but cannot produce what was asked (a cloud edit whose drag starts on empty
-    /// sky); the message is for the user.
-    #[error("{0}")]
-    Unprocessable(String),
-    /// Unprocessable with a problem type of its own (the last part of its URI) and title.
+    /// sky, a stroke that misses the cloud); the message is for the user.
     #[error("{detail}")]
-    Refused {
-        problem: &'static str,
-        title: &'static str,
-        detail: String,
-    },
+    Refused { reason: Refusal, detail: String },
 }
 
 impl From<Canceled> for RunError {
     fn from(_: Canceled) -> Self {
         RunError::Canceled
+    }
+}
+
+/// Parameters a [`PipelineSet`] validated: the canonical JSON (resolved, defaults filled: what
+/// request keys hash and job records store) and, for the engine's pipelines, the typed parameters
+/// it was made from, so the input check of the same request does not parse it again.
+#[derive(Debug, Clone)]
+pub struct Validated {
+    canonical: serde_json::Value,
+    typed: Option<Arc<registry::PipelineParams>>,
+}
+
+impl Validated {
+    /// Parameters known only as canonical JSON (a test pipeline's, or read from a record).
+    pub fn json(canonical: serde_json::Value) -> Self {
+        Self {
+            canonical,
+            typed: None,
+        }
+    }
+
+    /// The canonical JSON.
+    pub fn canonical(&self) -> &serde_json::Value {
+        &self.canonical
+    }
+
+    /// The canonical JSON, owned.
+    pub fn into_canonical(self) -> serde_json::Value {
+        self.canonical
     }
 }
 
@@ -41,17 +71,13 @@ pub trait PipelineSet: Send + Sync + 'static {
     fn names(&self) -> Vec<&'static str>;
     /// Name of the multipart part holding the input (`dem`, `mesh`, `volume`).
     fn input_part(&self, pipeline: &str) -> Option<&'static str>;
-    /// Validates wire parameters and returns them resolved (defaults filled) as canonical JSON.
-    fn params(
-        &self,
-        pipeline: &str,
-        raw: &serde_json::Value,
-    ) -> Result<serde_json::Value, ParamError>;
+    /// Validates wire parameters and returns them resolved (defaults filled).
+    fn params(&self, pipeline: &str, raw: &serde_json::Value) -> Result<Validated, ParamError>;
     /// Decodes the input enough to reject a corrupt, unsupported or oversize file up front.
     fn check_input(
         &self,
         pipeline: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
     ) -> Result<(), InputError>;
@@ -87,7 +113,7 @@ pub trait PipelineSet: Send + Sync + 'static {
     fn check_with_aux(
         &self,
         pipeline: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
         _aux: &[(String, Vec<u8>)],
@@ -106,7 +132,7 @@ pub trait PipelineSet: Send + Sync + 'static {
     fn describe_input(
         &self,
         pipeline: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
     ) -> Result<serde_json::Value, InputError> {
@@ -126,6 +152,20 @@ fn kind(name: &str) -> Result<PipelineKind, ParamError> {
         .ok_or_else(|| ParamError::new("pipeline", format!("unknown pipeline {name:?}")))
 }
 
+impl EnginePipelines {
+    /// The typed parameters of `params`: those it was validated into, or (JSON only) parsed.
+    fn typed(
+        &self,
+        name: &str,
+        params: &Validated,
+    ) -> Result<registry::PipelineParams, ParamError> {
+        match &params.typed {
+            Some(p) => Ok(p.as_ref().clone()),
+            None => registry::PipelineParams::parse(kind(name)?, &params.canonical, &self.limits),
+        }
+    }
+}
+
 impl PipelineSet for EnginePipelines {
     fn names(&self) -> Vec<&'static str> {
         PipelineKind::public().map(|k| k.name()).collect()
@@ -135,20 +175,23 @@ impl PipelineSet for EnginePipelines {
         PipelineKind::parse(name).map(PipelineKind::input_part)
     }
 
-    fn params(&self, name: &str, raw: &serde_json::Value) -> Result<serde_json::Value, ParamError> {
-        let p = pipeline::Params::parse(kind(name)?, raw, &self.limits)?;
-        Ok(p.canonical())
+    fn params(&self, name: &str, raw: &serde_json::Value) -> Result<Validated, ParamError> {
+        let p = registry::PipelineParams::parse(kind(name)?, raw, &self.limits)?;
+        Ok(Validated {
+            canonical: p.canonical(),
+            typed: Some(Arc::new(p)),
+        })
     }
 
     fn check_input(
         &self,
         name: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
     ) -> Result<(), InputError> {
-        let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
-        pipeline::decode(p, input, filename, &self.limits).map(|_| ())
+        let p = self.typed(name, params)?;
+        registry::decode(p, input, filename, &self.limits).map(|_| ())
     }
 
     fn run(
@@ -171,30 +214,22 @@ impl PipelineSet for EnginePipelines {
         aux: &[(String, Vec<u8>)],
         ctl: &dyn Control,
     ) -> Result<Vec<Output>, RunError> {
-        let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
-        let job = pipeline::decode_with_aux(p, input, filename, aux, &self.limits)?;
-        pipeline::run(&job, ctl).map_err(|e| match e {
+        let p = registry::PipelineParams::parse(kind(name)?, params, &self.limits)?;
+        let job = registry::decode_parts(p, input, filename, aux, &self.limits)
+            .map_err(InputError::from)?;
+        registry::run(&job, ctl).map_err(|e| match e {
             RunFailure::Canceled => RunError::Canceled,
-            RunFailure::Unprocessable(m) => RunError::Unprocessable(m),
-            RunFailure::Refused {
-                problem,
-                title,
-                detail,
-            } => RunError::Refused {
-                problem,
-                title,
-                detail,
-            },
+            RunFailure::Refused { reason, detail } => RunError::Refused { reason, detail },
         })
     }
 
     fn decode_cost(&self, name: &str, with_aux: bool) -> u64 {
-        PipelineKind::parse(name).map_or(0, |k| pipeline::decode_cost(k, &self.limits, with_aux))
+        PipelineKind::parse(name).map_or(0, |k| registry::decode_cost(k, &self.limits, with_aux))
     }
 
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
         match PipelineKind::parse(name) {
-            Some(PipelineKind::SnowTerrain) => &[pipeline::ORTHO],
+            Some(PipelineKind::SnowTerrain) => &[registry::ORTHO],
             _ => &[],
         }
     }
@@ -202,25 +237,26 @@ impl PipelineSet for EnginePipelines {
     fn check_with_aux(
         &self,
         name: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
         aux: &[(String, Vec<u8>)],
     ) -> Result<(), (Option<&'static str>, InputError)> {
-        let k = kind(name).map_err(|e| (None, e.into()))?;
-        let p = pipeline::Params::parse(k, params, &self.limits).map_err(|e| (None, e.into()))?;
-        pipeline::decode_parts(p, input, filename, aux, &self.limits).map(|_| ())
+        let p = self.typed(name, params).map_err(|e| (None, e.into()))?;
+        registry::decode_parts(p, input, filename, aux, &self.limits)
+            .map(|_| ())
+            .map_err(|e| (e.part, e.error))
     }
 
     fn describe_input(
         &self,
         name: &str,
-        params: &serde_json::Value,
+        params: &Validated,
         input: &[u8],
         filename: Option<&str>,
     ) -> Result<serde_json::Value, InputError> {
-        let p = pipeline::Params::parse(kind(name)?, params, &self.limits)?;
-        let job = pipeline::decode(p, input, filename, &self.limits)?;
-        Ok(pipeline::describe(&job))
+        let p = self.typed(name, params)?;
+        let job = registry::decode(p, input, filename, &self.limits)?;
+        Ok(registry::describe(&job))
     }
 }

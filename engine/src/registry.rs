@@ -1,34 +1,15 @@
-//! The pipeline registry: names, parameter validation, input decoding and the run, for every
-//! pipeline the service offers. The server and the CLI go through these functions only.
+//! The pipeline registry, the engine's top floor: names, parameter validation, input decoding
+//! and the run, for every pipeline the service offers, dispatched to the pipelines. The server
+//! and the CLI go through these functions only; no pipeline imports this file.
 
-use crate::cloud::{self, AmbientField};
+use crate::cloud::{self, AmbientField, CloudEditParams};
 use crate::formats::dem::{decode_dem, DemOptions};
-use crate::formats::volume::{decode_volume, VolumeOptions};
 use crate::geom::{Dem, Mesh, Volume};
-use crate::{dust, snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError};
+use crate::{
+    dust, snow_cover, snow_terrain, Canceled, Control, InputError, Output, ParamError, Refusal,
+};
 
-/// Input and output size limits (configured by the server; the CLI uses the defaults).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Limits {
-    /// Largest input grid, cells (DEM) or voxels (volume). Checked from the file header before
-    /// the grid is allocated.
-    pub max_input_cells: u64,
-    /// Largest output image, pixels.
-    pub max_output_pixels: u64,
-    /// Largest input mesh, triangles (vertices: 3×). Checked from the file's counts before the
-    /// mesh is allocated.
-    pub max_input_triangles: u64,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Self {
-            max_input_cells: 8192 * 8192,
-            max_output_pixels: 7680 * 4320,
-            max_input_triangles: 4_000_000,
-        }
-    }
-}
+use crate::params::Limits;
 
 /// The most memory, in bytes, that decoding one input of `kind` can allocate under `limits`
 /// (besides the input's own bytes), with an auxiliary input (`with_aux`: snow-terrain's
@@ -119,102 +100,17 @@ impl PipelineKind {
     }
 }
 
-/// Parameters of one cloud edit job: the edit, the state of the version it starts from, and the
-/// scene's decoder options.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CloudEditParams {
-    /// `sun-color`, `ambient` or `sun-direction`.
-    pub kind: String,
-    /// The base version's state.
-    pub base: cloud::CloudState,
-    pub edit: cloud::Edit,
-    /// The edit as sent, kept for the canonical form (request keys).
-    pub raw_edit: serde_json::Value,
-    pub bounds: Option<[[f64; 3]; 2]>,
-    pub dims: Option<[usize; 3]>,
-}
-
-#[derive(serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct WireCloudEdit {
-    kind: String,
-    base: serde_json::Value,
-    edit: serde_json::Value,
-    #[serde(default)]
-    bounds: Option<serde_json::Value>,
-    #[serde(default)]
-    dims: Option<serde_json::Value>,
-}
-
-impl CloudEditParams {
-    /// Validates `{"kind", "base", "edit", "bounds"?, "dims"?}`; errors inside the edit are named
-    /// `edit.<field>`.
-    pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
-        let w: WireCloudEdit = deserialize_params(v)?;
-        let base = cloud::CloudState::from_json(&w.base)
-            .map_err(|e| ParamError::new(format!("base.{}", e.field), e.detail))?;
-        let edit = cloud::Edit::from_json(&w.kind, &w.edit, limits)
-            .map_err(|e| ParamError::new(format!("edit.{}", e.field), e.detail))?;
-        // The decoder options are validated by the cloud pipeline's own rules.
-        let mut opts = serde_json::Map::new();
-        for (k, val) in [("bounds", w.bounds), ("dims", w.dims)] {
-            if let Some(val) = val {
-                opts.insert(k.to_string(), val);
-            }
-        }
-        let p = cloud::Params::from_json(&serde_json::Value::Object(opts), limits)?;
-        Ok(Self {
-            kind: w.kind,
-            base,
-            edit,
-            raw_edit: w.edit,
-            bounds: p.bounds().map(|(lo, hi)| [lo, hi]),
-            dims: p.dims(),
-        })
-    }
-
-    fn canonical(&self) -> serde_json::Value {
-        serde_json::json!({
-            "kind": self.kind,
-            "base": self.base,
-            "edit": self.raw_edit,
-            "bounds": self.bounds,
-            "dims": self.dims,
-        })
-    }
-}
-
-/// Deserialises wire parameters, naming the offending field (`camera.fov_deg`) on error.
-pub fn deserialize_params<T: serde::de::DeserializeOwned>(
-    v: &serde_json::Value,
-) -> Result<T, ParamError> {
-    if !v.is_object() {
-        return Err(ParamError::new("params", "must be a JSON object"));
-    }
-    serde_path_to_error::deserialize(v).map_err(|e| {
-        // The path names the offending field itself, unknown names included (`camera.fovdeg`).
-        let path = e.path().to_string();
-        let field = if path == "." {
-            "params".to_string()
-        } else {
-            path
-        };
-        let inner = e.into_inner().to_string();
-        ParamError::new(field, inner)
-    })
-}
-
 /// Validated parameters of one pipeline.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Params {
+pub enum PipelineParams {
     SnowTerrain(Box<snow_terrain::Params>),
-    SnowCover(Box<snow_cover::Params>),
-    Cloud(Box<cloud::Params>),
+    SnowCover(Box<snow_cover::SnowCoverParams>),
+    Cloud(Box<cloud::CloudParams>),
     CloudEdit(Box<CloudEditParams>),
-    Dust(Box<dust::Params>),
+    Dust(Box<dust::DustParams>),
 }
 
-impl Params {
+impl PipelineParams {
     /// Validates wire JSON for `kind`.
     pub fn parse(
         kind: PipelineKind,
@@ -222,19 +118,21 @@ impl Params {
         limits: &Limits,
     ) -> Result<Self, ParamError> {
         match kind {
-            PipelineKind::SnowTerrain => Ok(Params::SnowTerrain(Box::new(
+            PipelineKind::SnowTerrain => Ok(PipelineParams::SnowTerrain(Box::new(
                 snow_terrain::Params::from_json(v, limits)?,
             ))),
-            PipelineKind::SnowCover => Ok(Params::SnowCover(Box::new(
-                snow_cover::Params::from_json(v, limits)?,
+            PipelineKind::SnowCover => Ok(PipelineParams::SnowCover(Box::new(
+                snow_cover::SnowCoverParams::from_json(v, limits)?,
             ))),
-            PipelineKind::Cloud => Ok(Params::Cloud(Box::new(cloud::Params::from_json(
+            PipelineKind::Cloud => Ok(PipelineParams::Cloud(Box::new(
+                cloud::CloudParams::from_json(v, limits)?,
+            ))),
+            PipelineKind::CloudEdit => Ok(PipelineParams::CloudEdit(Box::new(
+                CloudEditParams::from_json(v, limits)?,
+            ))),
+            PipelineKind::Dust => Ok(PipelineParams::Dust(Box::new(dust::DustParams::from_json(
                 v, limits,
             )?))),
-            PipelineKind::CloudEdit => Ok(Params::CloudEdit(Box::new(CloudEditParams::from_json(
-                v, limits,
-            )?))),
-            PipelineKind::Dust => Ok(Params::Dust(Box::new(dust::Params::from_json(v, limits)?))),
         }
     }
 
@@ -242,11 +140,11 @@ impl Params {
     /// keys and `report.json`. Parsing it again gives the same parameters.
     pub fn canonical(&self) -> serde_json::Value {
         let v = match self {
-            Params::SnowTerrain(p) => serde_json::to_value(p),
-            Params::SnowCover(p) => serde_json::to_value(p),
-            Params::Cloud(p) => serde_json::to_value(p),
-            Params::CloudEdit(p) => Ok(p.canonical()),
-            Params::Dust(p) => serde_json::to_value(p),
+            PipelineParams::SnowTerrain(p) => serde_json::to_value(p),
+            PipelineParams::SnowCover(p) => serde_json::to_value(p),
+            PipelineParams::Cloud(p) => serde_json::to_value(p),
+            PipelineParams::CloudEdit(p) => Ok(p.canonical()),
+            PipelineParams::Dust(p) => serde_json::to_value(p),
         };
         // Serialising plain structs of numbers, strings and options cannot fail.
         v.unwrap_or(serde_json::Value::Null)
@@ -263,11 +161,11 @@ pub enum Job {
         rock: Option<Box<snow_terrain::ortho::RockColours>>,
     },
     SnowCover {
-        params: Box<snow_cover::Params>,
+        params: Box<snow_cover::SnowCoverParams>,
         mesh: Mesh,
     },
     Cloud {
-        params: Box<cloud::Params>,
+        params: Box<cloud::CloudParams>,
         volume: Volume,
         ambient: Option<AmbientField>,
     },
@@ -285,7 +183,7 @@ pub enum Job {
         blob: Vec<u8>,
     },
     Dust {
-        params: Box<dust::Params>,
+        params: Box<dust::DustParams>,
         mesh: Mesh,
     },
 }
@@ -295,19 +193,10 @@ pub enum Job {
 pub enum RunFailure {
     #[error("canceled")]
     Canceled,
-    /// The request cannot be carried out on this input (a cloud edit dragged from empty sky);
-    /// the message is for the user.
-    #[error("{0}")]
-    Unprocessable(String),
-    /// Like `Unprocessable`, with a problem type of its own (a stroke that misses the cloud vs
-    /// one on cloud that no sunlight reaches).
+    /// The request cannot be carried out on this input (a cloud edit dragged from empty sky, a
+    /// stroke that misses the cloud); the message is for the user.
     #[error("{detail}")]
-    Refused {
-        /// The problem type: the last part of its URI (`stroke-misses-cloud`, …).
-        problem: &'static str,
-        title: &'static str,
-        detail: String,
-    },
+    Refused { reason: Refusal, detail: String },
 }
 
 impl From<Canceled> for RunFailure {
@@ -320,88 +209,52 @@ impl From<Canceled> for RunFailure {
 /// or JPEG) whose colours replace `rock_color` (SPEC §1 step 7). Also its multipart part's name.
 pub const ORTHO: &str = "ortho";
 
-/// The name of the auxiliary input holding a cloud scene version's ambient field.
-pub const AMBIENT_FIELD: &str = "ambient.bin";
+pub use cloud::{AMBIENT_FIELD, LAYERS};
 
-/// The name of a cloud edit's optional auxiliary input holding the layers of the base
-/// version's render at the edit's view (`layers.bin` of that render): a sun-colour edit then
-/// reads them instead of decoding the volume and marching.
-pub const LAYERS: &str = cloud::layers::LAYERS_FILE;
-
-fn volume_options(
-    bounds: Option<[[f64; 3]; 2]>,
-    dims: Option<[usize; 3]>,
-    limits: &Limits,
-) -> VolumeOptions {
-    VolumeOptions {
-        max_voxels: limits.max_input_cells,
-        dims,
-        bounds: bounds.map(|[lo, hi]| (lo, hi)),
-    }
+/// An input that could not be decoded, and which one.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{error}")]
+pub struct DecodeError {
+    /// `None` for the main input, the name of the auxiliary input otherwise (an orthophoto that
+    /// is corrupt, too large, in another CRS than the DEM or elsewhere on Earth).
+    pub part: Option<&'static str>,
+    #[source]
+    pub error: InputError,
 }
 
-/// Decodes a cloud volume. Its world box is the user's `bounds` or SPEC §3's default, the unit
-/// cube scaled to the grid's aspect — not the box the file's own geometry implies (an NRRD's
-/// spacings, an OpenVDB transform): κ is per world unit, so a file in centimetres or in voxel
-/// units would otherwise make the same κ mean wildly different clouds. The file's box is still
-/// reported by the decoders for those who pass it as `bounds`.
-fn cloud_volume(
-    bytes: &[u8],
-    filename: Option<&str>,
-    opts: &VolumeOptions,
-) -> Result<Volume, InputError> {
-    let mut volume = decode_volume(bytes, filename, opts)?;
-    if opts.bounds.is_none() {
-        volume.bounds = Volume::default_bounds(volume.dims);
+impl From<DecodeError> for InputError {
+    fn from(e: DecodeError) -> Self {
+        e.error
     }
-    Ok(volume)
-}
-
-fn ambient_field(
-    aux: &[(String, Vec<u8>)],
-    volume: &Volume,
-) -> Result<Option<AmbientField>, InputError> {
-    aux.iter()
-        .find(|(name, _)| name == AMBIENT_FIELD)
-        .map(|(_, bytes)| AmbientField::from_bytes(bytes, volume.len()))
-        .transpose()
 }
 
 /// Decodes `bytes` as the input of the pipeline `params` belongs to.
 pub fn decode(
-    params: Params,
+    params: PipelineParams,
     bytes: &[u8],
     filename: Option<&str>,
     limits: &Limits,
 ) -> Result<Job, InputError> {
-    decode_with_aux(params, bytes, filename, &[], limits)
+    Ok(decode_parts(params, bytes, filename, &[], limits)?)
 }
 
 /// Like [`decode`], with the job's named auxiliary inputs (a cloud version's
-/// [`AMBIENT_FIELD`], snow-terrain's [`ORTHO`]).
-pub fn decode_with_aux(
-    params: Params,
-    bytes: &[u8],
-    filename: Option<&str>,
-    aux: &[(String, Vec<u8>)],
-    limits: &Limits,
-) -> Result<Job, InputError> {
-    decode_parts(params, bytes, filename, aux, limits).map_err(|(_, e)| e)
-}
-
-/// [`decode_with_aux`] that also says which input an error is about: `None` for the main
-/// input, `Some(name)` for the auxiliary input `name` (an orthophoto that is corrupt, too large,
-/// in another CRS than the DEM or elsewhere on Earth).
+/// [`AMBIENT_FIELD`], snow-terrain's [`ORTHO`], a mesh's sidecar files), saying which input an
+/// error is about.
 pub fn decode_parts(
-    params: Params,
+    params: PipelineParams,
     bytes: &[u8],
     filename: Option<&str>,
     aux: &[(String, Vec<u8>)],
     limits: &Limits,
-) -> Result<Job, (Option<&'static str>, InputError)> {
-    let main = |e: InputError| (None, e);
+) -> Result<Job, DecodeError> {
+    let main = |error: InputError| DecodeError { part: None, error };
+    let in_ortho = |error: InputError| DecodeError {
+        part: Some(ORTHO),
+        error,
+    };
     match params {
-        Params::SnowTerrain(p) => {
+        PipelineParams::SnowTerrain(p) => {
             let opts = DemOptions {
                 max_cells: limits.max_input_cells,
                 cell_size: p.cell_size,
@@ -411,11 +264,11 @@ pub fn decode_parts(
             let rock = match aux.iter().find(|(name, _)| name == ORTHO) {
                 Some((_, b)) => {
                     let ortho = crate::formats::ortho::decode_ortho(b, limits.max_input_cells)
-                        .map_err(|e| (Some(ORTHO), e))?;
+                        .map_err(in_ortho)?;
                     let fallback = snow_terrain::run::rock_linear(&p);
                     Some(Box::new(
                         snow_terrain::ortho::rock_colours(&dem, &ortho, fallback)
-                            .map_err(|e| (Some(ORTHO), e))?,
+                            .map_err(in_ortho)?,
                     ))
                 }
                 None => None,
@@ -426,25 +279,23 @@ pub fn decode_parts(
                 rock,
             })
         }
-        Params::SnowCover(p) => {
-            // snow_cover::run::decode, with the sidecar files the CLI passes as aux inputs.
-            let mesh = p
-                .view
-                .decode_with(bytes, filename, aux, limits)
-                .map_err(main)?;
+        PipelineParams::SnowCover(p) => {
+            // The sidecar files the CLI passes as aux inputs.
+            let mesh = snow_cover::run::decode(bytes, filename, aux, &p, limits).map_err(main)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
-        Params::Cloud(p) => {
-            let opts = volume_options(p.bounds().map(|(lo, hi)| [lo, hi]), p.dims(), limits);
-            let volume = cloud_volume(bytes, filename, &opts).map_err(main)?;
-            let ambient = ambient_field(aux, &volume).map_err(main)?;
+        PipelineParams::Cloud(p) => {
+            let bounds = p.bounds().map(|(lo, hi)| [lo, hi]);
+            let volume =
+                cloud::input::decode(bytes, filename, bounds, p.dims(), limits).map_err(main)?;
+            let ambient = cloud::input::ambient_field(aux, &volume).map_err(main)?;
             Ok(Job::Cloud {
                 params: p,
                 volume,
                 ambient,
             })
         }
-        Params::CloudEdit(p) => {
+        PipelineParams::CloudEdit(p) => {
             if let cloud::Edit::SunColor(e) = &p.edit {
                 if let Some((_, blob)) = aux.iter().find(|(name, _)| name == LAYERS) {
                     let (id, layers) =
@@ -460,17 +311,17 @@ pub fn decode_parts(
                     }
                 }
             }
-            let volume = cloud_volume(bytes, filename, &volume_options(p.bounds, p.dims, limits))
-                .map_err(main)?;
-            let ambient = ambient_field(aux, &volume).map_err(main)?;
+            let volume =
+                cloud::input::decode(bytes, filename, p.bounds, p.dims, limits).map_err(main)?;
+            let ambient = cloud::input::ambient_field(aux, &volume).map_err(main)?;
             Ok(Job::CloudEdit {
                 params: p,
                 volume,
                 ambient,
             })
         }
-        Params::Dust(p) => {
-            let mesh = dust::run::decode_with(bytes, filename, aux, &p, limits).map_err(main)?;
+        PipelineParams::Dust(p) => {
+            let mesh = dust::run::decode(bytes, filename, aux, &p, limits).map_err(main)?;
             Ok(Job::Dust { params: p, mesh })
         }
     }
@@ -506,13 +357,9 @@ pub fn describe(job: &Job) -> serde_json::Value {
 fn edit_failure(e: cloud::EditError) -> RunFailure {
     match e {
         cloud::EditError::Canceled => RunFailure::Canceled,
-        other => match other.problem() {
-            Some((problem, title)) => RunFailure::Refused {
-                problem,
-                title,
-                detail: other.to_string(),
-            },
-            None => RunFailure::Unprocessable(other.to_string()),
+        other => RunFailure::Refused {
+            reason: other.refusal(),
+            detail: other.to_string(),
         },
     }
 }
@@ -555,9 +402,10 @@ pub fn run(job: &Job, ctl: &dyn Control) -> Result<Vec<Output>, RunFailure> {
             blob,
         } => {
             let cloud::Edit::SunColor(e) = &params.edit else {
-                return Err(RunFailure::Unprocessable(
-                    "only a sun-colour edit reads render layers".into(),
-                ));
+                return Err(RunFailure::Refused {
+                    reason: Refusal::Unprocessable,
+                    detail: "only a sun-colour edit reads render layers".into(),
+                });
             };
             cloud::edit::recolor(&params.base, e, layers, blob, ctl).map_err(edit_failure)
         }

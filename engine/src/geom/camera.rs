@@ -2,7 +2,10 @@
 //!
 //! Frame: X = east, Y = up, Z = south (right-handed, glTF's Y-up frame). Angles are in degrees at
 //! the API and radians inside. Everything is `f64`: a 4096-cell DEM at 30 m spans 120 km, and
-//! `f32` ray origins lose centimetres there.
+//! `f32` ray origins lose centimetres there. The maths is glam's `DVec3`; the public fields stay
+//! `[f64; 3]` (what parameters and the renderers hold).
+
+use super::vec::{normalized as normalize, sun_direction, DVec3};
 
 /// A perspective camera looking from `eye` at `target`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,12 +34,10 @@ impl Camera {
         distance: f64,
         fov_deg: f64,
     ) -> Self {
-        let az = azimuth_deg.to_radians();
-        let el = elevation_deg.clamp(-89.9, 89.9).to_radians();
-        // North is -Z, east is +X.
-        let dir = [el.cos() * az.sin(), el.sin(), -el.cos() * az.cos()];
+        // The camera stands where a sun at these angles would be seen from the centre.
+        let dir = DVec3::from(sun_direction(azimuth_deg, elevation_deg.clamp(-89.9, 89.9)));
         Self {
-            eye: add(center, scale(dir, distance)),
+            eye: (DVec3::from(center) + dir * distance).to_array(),
             target: center,
             up: [0.0, 1.0, 0.0],
             fov_deg,
@@ -53,22 +54,16 @@ impl Camera {
     /// Image-plane coordinates of `p` for an image of aspect `width / height`: `[-1, 1]²` is the
     /// frame (x right, y up); `None` when `p` is behind the eye.
     pub fn project_ndc(&self, p: [f64; 3], aspect: f64) -> Option<[f64; 2]> {
-        let f = normalize(sub(self.target, self.eye));
-        let mut r = cross(f, self.up);
-        if dot(r, r) < 1e-18 {
-            r = cross(f, [0.0, 0.0, -1.0]);
-        }
-        let r = normalize(r);
-        let u = cross(r, f);
-        let tan_half = (self.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan();
-        let v = sub(p, self.eye);
-        let z = dot(v, f);
+        let (f, r, u) = self.basis();
+        let tan_half = self.tan_half_fov();
+        let v = DVec3::from(p) - DVec3::from(self.eye);
+        let z = v.dot(f);
         if z <= 1e-9 {
             return None;
         }
         Some([
-            dot(v, r) / (z * tan_half * aspect),
-            dot(v, u) / (z * tan_half),
+            v.dot(r) / (z * tan_half * aspect),
+            v.dot(u) / (z * tan_half),
         ])
     }
 
@@ -88,7 +83,7 @@ impl Camera {
     ) -> Self {
         let radius = points
             .iter()
-            .map(|p| dot(sub(*p, center), sub(*p, center)).sqrt())
+            .map(|p| DVec3::from(*p).distance(DVec3::from(center)))
             .fold(0.0f64, f64::max)
             .max(1e-9);
         // The sphere fits the narrower of the two fields of view at this distance.
@@ -146,24 +141,34 @@ impl Camera {
         )
     }
 
-    /// Ray generator for an `width × height` image. Cheap; no allocation.
-    pub fn ray_gen(&self, width: u32, height: u32) -> RayGen {
-        let f = normalize(sub(self.target, self.eye));
-        let mut r = cross(f, self.up);
-        if dot(r, r) < 1e-18 {
+    /// The view's unit forward, right and up vectors (the rasteriser's projection shares them).
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        let f = normalize(DVec3::from(self.target) - DVec3::from(self.eye));
+        let mut r = f.cross(DVec3::from(self.up));
+        if r.length_squared() < 1e-18 {
             // Looking along `up`: pick any perpendicular.
-            r = cross(f, [0.0, 0.0, -1.0]);
+            r = f.cross(DVec3::NEG_Z);
         }
         let r = normalize(r);
-        let u = cross(r, f);
-        let tan_half = (self.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan();
+        (f, r, r.cross(f))
+    }
+
+    /// Tangent of half the vertical field of view.
+    pub fn tan_half_fov(&self) -> f64 {
+        (self.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan()
+    }
+
+    /// Ray generator for an `width × height` image. Cheap; no allocation.
+    pub fn ray_gen(&self, width: u32, height: u32) -> RayGen {
+        let (f, r, u) = self.basis();
+        let tan_half = self.tan_half_fov();
         let w = f64::from(width.max(1));
         let h = f64::from(height.max(1));
         RayGen {
             eye: self.eye,
             forward: f,
-            right: scale(r, tan_half * w / h),
-            up: scale(u, tan_half),
+            right: r * (tan_half * w / h),
+            up: u * tan_half,
             inv_w: 1.0 / w,
             inv_h: 1.0 / h,
         }
@@ -175,9 +180,9 @@ impl Camera {
 #[derive(Debug, Clone, Copy)]
 pub struct RayGen {
     pub eye: [f64; 3],
-    forward: [f64; 3],
-    right: [f64; 3],
-    up: [f64; 3],
+    forward: DVec3,
+    right: DVec3,
+    up: DVec3,
     inv_w: f64,
     inv_h: f64,
 }
@@ -188,46 +193,7 @@ impl RayGen {
     pub fn dir(&self, x: f64, y: f64) -> [f64; 3] {
         let sx = 2.0 * x * self.inv_w - 1.0;
         let sy = 1.0 - 2.0 * y * self.inv_h;
-        normalize([
-            self.forward[0] + sx * self.right[0] + sy * self.up[0],
-            self.forward[1] + sx * self.right[1] + sy * self.up[1],
-            self.forward[2] + sx * self.right[2] + sy * self.up[2],
-        ])
-    }
-}
-
-#[inline]
-pub(crate) fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-#[inline]
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-pub(crate) fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-#[inline]
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-/// Unit vector along `a`; `a` unchanged when it has zero length.
-#[inline]
-pub(crate) fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let l = dot(a, a).sqrt();
-    if l > 0.0 {
-        scale(a, 1.0 / l)
-    } else {
-        a
+        normalize(self.forward + sx * self.right + sy * self.up).to_array()
     }
 }
 

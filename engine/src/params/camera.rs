@@ -1,8 +1,10 @@
-//! Parameter pieces every pipeline shares (SPEC §5): the camera, range checks, colours.
+//! The camera parameter every pipeline shares (SPEC §5): orbit fields or eye/target on the wire,
+//! validated into a [`CameraSpec`] that places a [`Camera`] for a scene's bounds.
 
 use serde::{Deserialize, Serialize};
 
-use crate::render::camera::Camera;
+use super::range;
+use crate::geom::camera::Camera;
 use crate::ParamError;
 
 /// How the camera is placed (SPEC §5, shared by every pipeline).
@@ -40,40 +42,6 @@ pub struct WireCamera {
     pub fov_deg: Option<f64>,
     pub eye: Option<[f64; 3]>,
     pub target: Option<[f64; 3]>,
-}
-
-pub fn range<T: PartialOrd + std::fmt::Display + Copy>(
-    field: &str,
-    v: Option<T>,
-    default: T,
-    lo: T,
-    hi: T,
-) -> Result<T, ParamError> {
-    let x = v.unwrap_or(default);
-    // `!(lo <= x && x <= hi)` also rejects NaN.
-    if !(lo <= x && x <= hi) {
-        return Err(ParamError::new(
-            field,
-            format!("must be between {lo} and {hi}, got {x}"),
-        ));
-    }
-    Ok(x)
-}
-
-/// Parses `#rrggbb` into sRGB bytes.
-pub fn parse_hex_color(field: &str, s: &str) -> Result<[u8; 3], ParamError> {
-    let err = || {
-        ParamError::new(
-            field,
-            format!("expected a colour like \"#a0b1c2\", got {s:?}"),
-        )
-    };
-    let h = s.strip_prefix('#').ok_or_else(err)?;
-    if h.len() != 6 || !h.is_ascii() {
-        return Err(err());
-    }
-    let byte = |i: usize| u8::from_str_radix(&h[i..i + 2], 16).map_err(|_| err());
-    Ok([byte(0)?, byte(2)?, byte(4)?])
 }
 
 fn finite3(field: &str, v: [f64; 3]) -> Result<[f64; 3], ParamError> {
@@ -179,26 +147,4 @@ impl CameraSpec {
             },
         }
     }
-}
-
-/// Validates the output image size (`width`, `height`; each 16–8192, `default` when absent) against
-/// the output pixel limit.
-pub fn image_size(
-    width: Option<u32>,
-    height: Option<u32>,
-    default: (u32, u32),
-    limits: &crate::pipeline::Limits,
-) -> Result<(u32, u32), ParamError> {
-    let w = range("width", width, default.0, 16, 8192)?;
-    let h = range("height", height, default.1, 16, 8192)?;
-    if u64::from(w) * u64::from(h) > limits.max_output_pixels {
-        return Err(ParamError::new(
-            "width",
-            format!(
-                "{w}×{h} exceeds the output limit of {} pixels",
-                limits.max_output_pixels
-            ),
-        ));
-    }
-    Ok((w, h))
 }

@@ -7,8 +7,9 @@
 
 use rayon::prelude::*;
 
-use super::SnowMaps;
 use crate::geom::mesh::{Mesh, MeshPart};
+use crate::geom::vec::Vec3;
+use crate::snow_cover::SnowMaps;
 
 /// Builds a [`Mesh`] from quads, grids and boxes (one part, grey).
 #[derive(Debug, Default)]
@@ -22,11 +23,10 @@ impl SceneBuilder {
     pub fn quad(&mut self, q: [[f32; 3]; 4], out: [f32; 3]) {
         let base = self.mesh.positions.len() as u32;
         self.mesh.positions.extend_from_slice(&q);
-        let u = sub(q[1], q[0]);
-        let v = sub(q[2], q[0]);
-        let n = cross(u, v);
+        let [p0, p1, p2] = [q[0], q[1], q[2]].map(Vec3::from);
+        let n = (p1 - p0).cross(p2 - p0);
         let (a, b, c, d) = (base, base + 1, base + 2, base + 3);
-        if dot(n, out) >= 0.0 {
+        if n.dot(Vec3::from(out)) >= 0.0 {
             self.mesh.triangles.push([a, b, c]);
             self.mesh.triangles.push([a, c, d]);
         } else {
@@ -135,23 +135,6 @@ impl SceneBuilder {
         }];
         self.mesh
     }
-}
-
-/// `a − b`.
-pub fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-/// `a × b`.
-pub fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-/// `a · b`.
-pub fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// A bumpy 10 × 10 m grid of `n × m` quads (`0.2 sin(1.3x) cos(0.9z)`) with `boxes` boxes on it
