@@ -9,8 +9,10 @@
 #
 # The manifest has one line per output, `<sha256>  <case>/<file>`, sorted. `report.json` and
 # `state.json` carry per-stage timings (wall-clock milliseconds), which differ from run to run:
-# they are hashed with every key named `timings`, `timings_ms` or `ms` removed (jq), so their
+# they are hashed with every key named `timings`, `timings_ms`, `ms` or `total_ms` removed (jq), so their
 # numbers and structure still count. Everything else is hashed as written.
+#
+# scripts/checksums/baseline-457487d.txt is the manifest of main at 457487d (release build).
 #
 # Cases: snow-terrain (default; `paper` preset; an orthophoto; a sea DEM; a sweep sheet),
 # snow-cover (glTF, OBJ, textured glTF), cloud (single and `scattering: multiple`, with layers),
@@ -93,7 +95,7 @@ manifest="$OUT/manifest.txt"
     find . -mindepth 2 -type f | sed 's|^\./||' | LC_ALL=C sort | while read -r f; do
         case "$f" in
         *.json)
-            sum=$(jq -S 'walk(if type == "object" then del(.timings, .timings_ms, .ms) else . end)' "$f" |
+            sum=$(jq -S 'walk(if type == "object" then del(.timings, .timings_ms, .ms, .total_ms) else . end)' "$f" |
                 sha256sum | cut -d' ' -f1)
             ;;
         *) sum=$(sha256sum "$f" | cut -d' ' -f1) ;;
