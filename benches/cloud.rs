@@ -27,11 +27,11 @@ use phenomena_engine::cloud::layers::{identity, Layers};
 use phenomena_engine::cloud::light::SunLight;
 use phenomena_engine::cloud::march::{render_layers, Prepared};
 use phenomena_engine::cloud::multigrid::{llw_system, propagate, SolveOptions};
-use phenomena_engine::cloud::procedural::{cumulus, cumulus_pins};
 use phenomena_engine::cloud::{CloudState, View};
 use phenomena_engine::formats::volume::{decode_volume, VolumeOptions};
 use phenomena_engine::geom::Volume;
-use phenomena_engine::pipeline::Limits;
+use phenomena_engine::params::Limits;
+use phenomena_engine::testkit::cloud_volumes::{cumulus, cumulus_pins};
 use phenomena_engine::NoControl;
 use serde_json::json;
 

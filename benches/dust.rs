@@ -27,11 +27,11 @@ use phenomena_engine::dust::noise::TileableNoise;
 use phenomena_engine::dust::render::{shell_overlay, Shells};
 use phenomena_engine::dust::surface::{crease_split, refine};
 use phenomena_engine::dust::texture::ShellTexture;
-use phenomena_engine::dust::Params;
+use phenomena_engine::dust::DustParams;
 use phenomena_engine::formats::mesh::{decode_mesh, MeshOptions, UpAxis};
 use phenomena_engine::geom::mesh::{Mesh, MeshPart};
-use phenomena_engine::pipeline::Limits;
-use phenomena_engine::render::mesh::{MeshColors, MeshInstance, MeshRenderer};
+use phenomena_engine::params::Limits;
+use phenomena_engine::render::mesh::{MeshColors, MeshInstance, MeshLighting, MeshRenderer};
 use phenomena_engine::NoControl;
 
 /// Copies of the armadillo until there are at least `min_vertices` vertices and
@@ -100,7 +100,7 @@ fn bench(c: &mut Criterion) {
 
     // The render: ≥ 100,000 triangles, 32 shells, 1920×1080, the pipeline's defaults.
     let mesh = armadillo_grid(0, 100_000);
-    let p = Params::from_json(
+    let p = DustParams::from_json(
         &serde_json::json!({"width": 1920, "height": 1080, "shells": 32}),
         &Limits::default(),
     )
@@ -141,7 +141,7 @@ fn bench(c: &mut Criterion) {
         noise_side: side as usize,
         dust_color: p.dust_color_linear(),
     };
-    let light = p.view.lighting(&m);
+    let light = MeshLighting::for_view(&p.view, &m);
     let cam = p.view.camera_for(&m, 1920, 1080);
     eprintln!("render mesh: {} triangles", m.triangles.len());
     g.bench_function("render_100k_32_1080p", |b| {

@@ -1,5 +1,5 @@
 //! Criterion benches of the `snow-cover` model (issue 4's figures), on the scenes the engine's
-//! `snow_cover::timings` test uses (`phenomena_engine::snow_cover::scenes`, one copy for both).
+//! `snow_cover::model::timings` test uses (`phenomena_engine::testkit::snow_scenes`, one copy for both).
 //!
 //! - `probability/paper`: the journal's scale, 5,114 triangles, K = 5, 128² maps (target ≤ 5 ms);
 //! - `probability/1m_k64_1024`: 999,890 triangles, K = 64, 1024² maps (target ≤ 1.5 s); about 2 s
@@ -16,13 +16,13 @@
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use phenomena_engine::snow_cover::scenes::{
-    animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
-    upward_ray_casting,
-};
 use phenomena_engine::snow_cover::snowfall::accumulate_between;
 use phenomena_engine::snow_cover::{
     build_snow_maps, snow_probability, snowfall_directions, Receiver, Settler, Snowfall,
+};
+use phenomena_engine::testkit::snow_scenes::{
+    animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
+    upward_ray_casting,
 };
 use phenomena_engine::NoControl;
 

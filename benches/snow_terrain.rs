@@ -17,7 +17,7 @@ use phenomena_engine::formats::geotiff_write::write_float32_geotiff;
 use phenomena_engine::formats::glb::terrain_glb;
 use phenomena_engine::formats::png_write::encode_rgba;
 use phenomena_engine::geom::Dem;
-use phenomena_engine::pipeline::Limits;
+use phenomena_engine::params::Limits;
 use phenomena_engine::snow_terrain::altitude::apply_altitude;
 use phenomena_engine::snow_terrain::colour::albedo;
 use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};

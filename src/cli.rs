@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use phenomena_engine::Control;
 
 use crate::config::Config;
-use crate::pipelines::{EnginePipelines, PipelineSet, RunError};
+use crate::pipeline_set::{EnginePipelines, PipelineSet, RunError};
 
 #[derive(Debug, clap::Args)]
 pub struct RenderArgs {
@@ -148,7 +148,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         let value = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.into()));
         set_dotted(&mut raw, k, value)?;
     }
-    let params = set.params(name, &raw)?;
+    let params = set.params(name, &raw)?.into_canonical();
     let input = std::fs::read(&args.input).map_err(|source| CliError::Io {
         path: args.input.clone(),
         source,
@@ -161,7 +161,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
     if let Some(path) = &args.ortho {
         if !set
             .aux_parts(name)
-            .contains(&phenomena_engine::pipeline::ORTHO)
+            .contains(&phenomena_engine::registry::ORTHO)
         {
             return Err(CliError::Ortho(format!(
                 "the {name} pipeline takes no orthophoto"
@@ -171,7 +171,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
             path: path.clone(),
             source,
         })?;
-        aux.push((phenomena_engine::pipeline::ORTHO.to_string(), bytes));
+        aux.push((phenomena_engine::registry::ORTHO.to_string(), bytes));
     }
 
     let bar = if args.quiet {
@@ -206,8 +206,7 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
         Err(RunError::Canceled) => return Err(CliError::Canceled),
         Err(RunError::Input(e)) => return Err(e.into()),
         Err(RunError::Param(e)) => return Err(e.into()),
-        Err(RunError::Unprocessable(m)) => return Err(CliError::Unprocessable(m)),
-        Err(e @ RunError::Refused { .. }) => return Err(CliError::Unprocessable(e.to_string())),
+        Err(RunError::Refused { detail, .. }) => return Err(CliError::Unprocessable(detail)),
     };
     std::fs::create_dir_all(&args.out).map_err(|source| CliError::Io {
         path: args.out.clone(),

@@ -448,8 +448,8 @@ impl Config {
         }
     }
 
-    pub fn limits(&self) -> phenomena_engine::pipeline::Limits {
-        phenomena_engine::pipeline::Limits {
+    pub fn limits(&self) -> phenomena_engine::params::Limits {
+        phenomena_engine::params::Limits {
             max_input_cells: self.max_input_cells,
             max_output_pixels: self.max_output_pixels,
             max_input_triangles: self.max_input_triangles,

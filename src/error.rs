@@ -3,11 +3,133 @@
 
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
+use phenomena_engine::Refusal;
 use phenomena_engine::{InputError, ParamError};
 use serde::Serialize;
 
 /// Base of the problem `type` URIs (documented in openapi.yaml; they need not resolve).
-pub const PROBLEM_BASE: &str = "https://phenomena.dev/problems/";
+const PROBLEM_BASE: &str = "https://phenomena.dev/problems/";
+
+/// What went wrong, as the API names it: every problem `type` URI and title the service reports,
+/// in HTTP responses and in failed jobs' `error`, comes from here and nowhere else.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Problem {
+    BadRequest,
+    NotFound,
+    MethodNotAllowed,
+    Unauthorized,
+    Conflict,
+    RequestTimeout,
+    TooLarge,
+    UnsupportedFormat,
+    InvalidParameter,
+    InvalidInput,
+    QueueFull,
+    Overloaded,
+    Unavailable,
+    Internal,
+    /// A job's run: the pipeline cannot produce what was asked (a cloud edit dragged from
+    /// empty sky).
+    Unprocessable,
+    /// A cloud edit's stroke that misses the cloud.
+    StrokeMissesCloud,
+    /// A cloud edit's stroke on cloud that no sunlight reaches.
+    StrokeNotLit,
+    /// A job's input could not be read from the store.
+    InputMissing,
+    /// A job's outputs could not be stored.
+    Storage,
+    /// A job ran longer than the time limit.
+    TimeLimit,
+    /// A job whose worker died in every attempt.
+    Poisoned,
+    /// A job canceled (a cloud scene version whose edit job was canceled).
+    Canceled,
+}
+
+impl Problem {
+    /// The last part of the `type` URI.
+    fn slug(self) -> &'static str {
+        match self {
+            Problem::BadRequest => "bad-request",
+            Problem::NotFound => "not-found",
+            Problem::MethodNotAllowed => "method-not-allowed",
+            Problem::Unauthorized => "unauthorized",
+            Problem::Conflict => "conflict",
+            Problem::RequestTimeout => "request-timeout",
+            Problem::TooLarge => "too-large",
+            Problem::UnsupportedFormat => "unsupported-format",
+            Problem::InvalidParameter => "invalid-parameter",
+            Problem::InvalidInput => "invalid-input",
+            Problem::QueueFull => "queue-full",
+            Problem::Overloaded => "overloaded",
+            Problem::Unavailable => "unavailable",
+            Problem::Internal => "internal",
+            Problem::Unprocessable => "unprocessable",
+            Problem::StrokeMissesCloud => "stroke-misses-cloud",
+            Problem::StrokeNotLit => "stroke-not-lit",
+            Problem::InputMissing => "input-missing",
+            Problem::Storage => "storage",
+            Problem::TimeLimit => "time-limit",
+            Problem::Poisoned => "poisoned",
+            Problem::Canceled => "canceled",
+        }
+    }
+
+    /// The problem's `type` URI.
+    pub fn type_uri(self) -> String {
+        format!("{PROBLEM_BASE}{}", self.slug())
+    }
+
+    /// The problem's title. A failed job's title (a job-run problem) differs from the HTTP
+    /// response's for the same kind where the job system words it its own way.
+    pub fn title(self) -> &'static str {
+        match self {
+            Problem::BadRequest => "Bad request",
+            Problem::NotFound => "Not found",
+            Problem::MethodNotAllowed => "Method not allowed",
+            Problem::Unauthorized => "Unauthorized",
+            Problem::Conflict => "Conflict",
+            Problem::RequestTimeout => "Request timeout",
+            Problem::TooLarge => "Payload too large",
+            Problem::UnsupportedFormat => "Unsupported format",
+            Problem::InvalidParameter => "Invalid parameter",
+            Problem::InvalidInput => "Invalid input",
+            Problem::QueueFull => "Queue full",
+            Problem::Overloaded => "Overloaded",
+            Problem::Unavailable => "Service unavailable",
+            Problem::Internal => "Internal server error",
+            Problem::Unprocessable => "Cannot be done",
+            Problem::StrokeMissesCloud => "The stroke misses the cloud",
+            Problem::StrokeNotLit => "Nothing under the stroke is sunlit",
+            Problem::InputMissing => "Input unavailable",
+            Problem::Storage => "Storage unavailable",
+            Problem::TimeLimit => "Time limit exceeded",
+            Problem::Poisoned => "Job poisoned",
+            Problem::Canceled => "Canceled",
+        }
+    }
+
+    /// The title of the problem in a failed job's `error`: the job system says "Internal error"
+    /// where an HTTP response says "Internal server error".
+    pub fn job_title(self) -> &'static str {
+        match self {
+            Problem::Internal => "Internal error",
+            other => other.title(),
+        }
+    }
+}
+
+/// The problem kind of a refusal by the engine.
+impl From<Refusal> for Problem {
+    fn from(r: Refusal) -> Self {
+        match r {
+            Refusal::Unprocessable => Problem::Unprocessable,
+            Refusal::StrokeMissesCloud => Problem::StrokeMissesCloud,
+            Refusal::StrokeNotLit => Problem::StrokeNotLit,
+        }
+    }
+}
 
 /// An API failure.
 #[derive(Debug, thiserror::Error)]
@@ -53,7 +175,7 @@ pub enum ApiError {
 }
 
 #[derive(Serialize)]
-struct Problem<'a> {
+struct ProblemBody<'a> {
     #[serde(rename = "type")]
     kind: String,
     title: &'a str,
@@ -97,58 +219,32 @@ impl ApiError {
         }
     }
 
-    fn parts(&self) -> (StatusCode, &'static str, &'static str) {
+    /// The status code and the problem kind.
+    fn parts(&self) -> (StatusCode, Problem) {
         match self {
-            ApiError::BadRequest { .. } => (StatusCode::BAD_REQUEST, "bad-request", "Bad request"),
-            ApiError::NotFound(_) => (StatusCode::NOT_FOUND, "not-found", "Not found"),
-            ApiError::MethodNotAllowed(_) => (
-                StatusCode::METHOD_NOT_ALLOWED,
-                "method-not-allowed",
-                "Method not allowed",
-            ),
-            ApiError::Conflict(_) => (StatusCode::CONFLICT, "conflict", "Conflict"),
-            ApiError::RequestTimeout(_) => (
-                StatusCode::REQUEST_TIMEOUT,
-                "request-timeout",
-                "Request timeout",
-            ),
-            ApiError::Unauthorized(_) => (StatusCode::UNAUTHORIZED, "unauthorized", "Unauthorized"),
-            ApiError::PayloadTooLarge(_) => (
-                StatusCode::PAYLOAD_TOO_LARGE,
-                "too-large",
-                "Payload too large",
-            ),
+            ApiError::BadRequest { .. } => (StatusCode::BAD_REQUEST, Problem::BadRequest),
+            ApiError::NotFound(_) => (StatusCode::NOT_FOUND, Problem::NotFound),
+            ApiError::MethodNotAllowed(_) => {
+                (StatusCode::METHOD_NOT_ALLOWED, Problem::MethodNotAllowed)
+            }
+            ApiError::Conflict(_) => (StatusCode::CONFLICT, Problem::Conflict),
+            ApiError::RequestTimeout(_) => (StatusCode::REQUEST_TIMEOUT, Problem::RequestTimeout),
+            ApiError::Unauthorized(_) => (StatusCode::UNAUTHORIZED, Problem::Unauthorized),
+            ApiError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, Problem::TooLarge),
             ApiError::UnsupportedMediaType(_) => (
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "unsupported-format",
-                "Unsupported format",
+                Problem::UnsupportedFormat,
             ),
-            ApiError::InvalidParameter(_) => (
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid-parameter",
-                "Invalid parameter",
-            ),
-            ApiError::InvalidInput { .. } => (
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid-input",
-                "Invalid input",
-            ),
-            ApiError::QueueFull { .. } => {
-                (StatusCode::TOO_MANY_REQUESTS, "queue-full", "Queue full")
+            ApiError::InvalidParameter(_) => {
+                (StatusCode::UNPROCESSABLE_ENTITY, Problem::InvalidParameter)
             }
-            ApiError::Overloaded { .. } => {
-                (StatusCode::TOO_MANY_REQUESTS, "overloaded", "Overloaded")
+            ApiError::InvalidInput { .. } => {
+                (StatusCode::UNPROCESSABLE_ENTITY, Problem::InvalidInput)
             }
-            ApiError::Unavailable(_) => (
-                StatusCode::SERVICE_UNAVAILABLE,
-                "unavailable",
-                "Service unavailable",
-            ),
-            ApiError::Internal(_) => (
-                StatusCode::INTERNAL_SERVER_ERROR,
-                "internal",
-                "Internal server error",
-            ),
+            ApiError::QueueFull { .. } => (StatusCode::TOO_MANY_REQUESTS, Problem::QueueFull),
+            ApiError::Overloaded { .. } => (StatusCode::TOO_MANY_REQUESTS, Problem::Overloaded),
+            ApiError::Unavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, Problem::Unavailable),
+            ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, Problem::Internal),
         }
     }
 }
@@ -159,53 +255,9 @@ impl From<ParamError> for ApiError {
     }
 }
 
-impl From<crate::store::StoreError> for ApiError {
-    fn from(e: crate::store::StoreError) -> Self {
-        match e {
-            crate::store::StoreError::TooLarge { .. } => {
-                ApiError::PayloadTooLarge("request body too large".into())
-            }
-            crate::store::StoreError::Upload(detail) => {
-                ApiError::bad_request(format!("the upload failed: {detail}"))
-            }
-            e => {
-                tracing::error!(error = %e, "store failure");
-                ApiError::Unavailable("storage is unavailable; try again later".into())
-            }
-        }
-    }
-}
-
-impl From<crate::jobs::JobsError> for ApiError {
-    fn from(e: crate::jobs::JobsError) -> Self {
-        match e {
-            crate::jobs::JobsError::Store(e) => e.into(),
-            crate::jobs::JobsError::Backend(msg) => {
-                tracing::error!(error = %msg, "job backend failure");
-                ApiError::Unavailable("the job system is unavailable; try again later".into())
-            }
-        }
-    }
-}
-
-impl From<crate::clouds::SceneError> for ApiError {
-    fn from(e: crate::clouds::SceneError) -> Self {
-        match e {
-            crate::clouds::SceneError::NotFound(d) => {
-                ApiError::NotFound(format!("no cloud scene {d}"))
-            }
-            crate::clouds::SceneError::Store(s) => s.into(),
-            crate::clouds::SceneError::Backend(msg) => {
-                tracing::error!(error = %msg, "scene store failure");
-                ApiError::Unavailable("the scene store is unavailable; try again later".into())
-            }
-        }
-    }
-}
-
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let (status, kind, title) = self.parts();
+        let (status, problem) = self.parts();
         let (detail, field) = match &self {
             ApiError::Internal(msg) => {
                 tracing::error!(error = %msg, "internal error");
@@ -217,9 +269,9 @@ impl IntoResponse for ApiError {
             ApiError::InvalidParameter(p) => (p.to_string(), Some(p.field.clone())),
             other => (other.to_string(), None),
         };
-        let body = Problem {
-            kind: format!("{PROBLEM_BASE}{kind}"),
-            title,
+        let body = ProblemBody {
+            kind: problem.type_uri(),
+            title: problem.title(),
             status: status.as_u16(),
             detail,
             field,

@@ -5,12 +5,12 @@
 
 pub mod api;
 pub mod cli;
-pub mod clouds;
 pub mod config;
 pub mod error;
 pub mod jobs;
 pub mod metrics;
-pub mod pipelines;
+pub mod pipeline_set;
+pub mod scenes;
 pub mod serve;
 pub mod store;
 
@@ -21,15 +21,15 @@ use std::time::Duration;
 pub use api::{app, AppState};
 use tokio_util::sync::CancellationToken;
 
-use crate::clouds::files::FileScenes;
-use crate::clouds::redis::RedisScenes;
-use crate::clouds::Scenes;
 use crate::config::Config;
 use crate::jobs::embedded::Embedded;
 use crate::jobs::redis::{RedisJobs, RedisSettings};
 use crate::jobs::{JobBackend, Jobs};
 use crate::metrics::Metrics;
-use crate::pipelines::{EnginePipelines, PipelineSet};
+use crate::pipeline_set::{EnginePipelines, PipelineSet};
+use crate::scenes::files::FileScenes;
+use crate::scenes::redis::RedisScenes;
+use crate::scenes::Scenes;
 use crate::store::Store;
 
 /// Start-up failures.
@@ -44,7 +44,7 @@ pub enum StartError {
     #[error("metrics: {0}")]
     Metrics(#[from] prometheus::Error),
     #[error("cannot load the cloud scenes: {0}")]
-    Scenes(#[from] clouds::SceneError),
+    Scenes(#[from] scenes::SceneError),
 }
 
 /// Opens the store and starts the job system with the engine's pipelines.
@@ -70,17 +70,17 @@ pub async fn state_with(
     tracing::info!(blobs = %store.blob_url(), "blob store");
     let metrics = Metrics::new()?;
     let jcfg = cfg.jobs();
-    let (backend, clouds): (Arc<dyn JobBackend>, Scenes) = match &cfg.redis_url {
+    let (backend, scenes): (Arc<dyn JobBackend>, Scenes) = match &cfg.redis_url {
         None => {
-            let clouds = Scenes::new(Arc::new(FileScenes::open(store.clone())?), store.clone());
+            let scenes = Scenes::new(Arc::new(FileScenes::open(store.clone())?), store.clone());
             let backend = Embedded::start(
                 store.clone(),
                 pipelines.clone(),
-                Arc::new(clouds.clone()),
+                Arc::new(scenes.clone()),
                 jcfg.clone(),
                 metrics.clone(),
             )?;
-            (Arc::new(backend), clouds)
+            (Arc::new(backend), scenes)
         }
         Some(url) => {
             let client = ::redis::Client::open(url.as_str())
@@ -88,7 +88,7 @@ pub async fn state_with(
             let con = jobs::redis::connect(&client)
                 .await
                 .map_err(|e| StartError::Backend(format!("cannot reach Redis: {e}")))?;
-            let clouds = Scenes::new(
+            let scenes = Scenes::new(
                 Arc::new(RedisScenes::new(con, &cfg.redis_prefix)),
                 store.clone(),
             );
@@ -102,28 +102,28 @@ pub async fn state_with(
                 settings,
                 store.clone(),
                 pipelines.clone(),
-                Arc::new(clouds.clone()),
+                Arc::new(scenes.clone()),
                 jcfg.clone(),
                 metrics.clone(),
             )
             .await?;
-            (Arc::new(backend), clouds)
+            (Arc::new(backend), scenes)
         }
     };
-    let hooks = Arc::new(clouds.clone());
+    let hooks = Arc::new(scenes.clone());
     metrics
         .replica_info
         .with_label_values(&[cfg.replica_id.as_str(), cfg.role.as_str(), backend.kind()])
         .set(1);
     let jobs = Jobs::new(backend, store, pipelines, hooks, &jcfg, metrics.clone());
     // Versions whose job ended while the process was down (or just before a crash).
-    for id in clouds.pending_jobs(None).await? {
+    for id in scenes.pending_jobs(None).await? {
         if let Some(rec) = jobs
             .get(&id)
             .await
             .map_err(|e| StartError::Backend(e.to_string()))?
         {
-            clouds.resolve(&rec).await?;
+            scenes.resolve(&rec).await?;
         }
     }
     // Fill the store-size gauge once at start; the sweeper refreshes it.
@@ -134,7 +134,7 @@ pub async fn state_with(
         decodes: api::DecodeBudget::new(cfg.decode_budget_bytes, api::DECODE_WAIT),
         cfg: Arc::new(cfg),
         jobs,
-        clouds,
+        scenes,
         metrics,
         shutdown: CancellationToken::new(),
     })

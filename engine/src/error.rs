@@ -48,6 +48,18 @@ pub enum InputError {
     Param(#[from] ParamError),
 }
 
+/// Why a run that decoded and validated its input still cannot produce what was asked: the
+/// user's to fix (the server answers with a problem type per kind).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    /// Cannot be carried out on this input (a cloud edit dragged from empty sky).
+    Unprocessable,
+    /// A cloud edit's stroke that misses the cloud (SPEC §3.1, §3.2).
+    StrokeMissesCloud,
+    /// A cloud edit's stroke on cloud that no sunlight reaches (SPEC §3.1).
+    StrokeNotLit,
+}
+
 /// A declared count for a message: `u64::MAX` stands for a product that overflowed.
 fn count(n: u64) -> String {
     if n == u64::MAX {

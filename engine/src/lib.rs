@@ -10,14 +10,15 @@ pub mod dust;
 pub mod error;
 pub mod formats;
 pub mod geom;
-pub mod mesh_view;
 pub mod output;
 pub mod params;
-pub mod pipeline;
+pub mod registry;
 pub mod render;
 pub mod snow_cover;
 pub mod snow_terrain;
+#[cfg(feature = "testkit")]
+pub mod testkit;
 
 pub use control::{Canceled, Control, NoControl, Span};
-pub use error::{InputError, ParamError};
+pub use error::{InputError, ParamError, Refusal};
 pub use output::Output;

@@ -9,7 +9,8 @@ use std::sync::OnceLock;
 use axum::body::Body;
 use axum::http::Request;
 use libfuzzer_sys::fuzz_target;
-use phenomena_engine::pipeline::{Limits, Params, PipelineKind};
+use phenomena_engine::params::Limits;
+use phenomena_engine::registry::{PipelineKind, PipelineParams};
 
 fn runtime() -> &'static tokio::runtime::Runtime {
     static RT: OnceLock<tokio::runtime::Runtime> = OnceLock::new();
@@ -36,6 +37,6 @@ fuzz_target!(|data: &[u8]| {
     };
     let parsed = runtime().block_on(phenomena::api::parse_submission(req, "dem", 1 << 20));
     if let Ok((params, _input)) = parsed {
-        let _ = Params::parse(PipelineKind::SnowTerrain, &params, &Limits::default());
+        let _ = PipelineParams::parse(PipelineKind::SnowTerrain, &params, &Limits::default());
     }
 });

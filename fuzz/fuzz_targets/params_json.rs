@@ -3,7 +3,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use phenomena_engine::pipeline::{Limits, Params, PipelineKind};
+use phenomena_engine::params::Limits;
+use phenomena_engine::registry::{PipelineKind, PipelineParams};
 
 fuzz_target!(|data: &[u8]| {
     let Ok(v) = serde_json::from_slice::<serde_json::Value>(data) else {
@@ -11,9 +12,9 @@ fuzz_target!(|data: &[u8]| {
     };
     let limits = Limits::default();
     for kind in PipelineKind::ALL {
-        if let Ok(p) = Params::parse(*kind, &v, &limits) {
+        if let Ok(p) = PipelineParams::parse(*kind, &v, &limits) {
             // The canonical form must parse back to the same parameters.
-            let again = Params::parse(*kind, &p.canonical(), &limits);
+            let again = PipelineParams::parse(*kind, &p.canonical(), &limits);
             assert!(again.is_ok(), "canonical params of {kind:?} do not parse back: {again:?}");
         }
     }

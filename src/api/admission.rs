@@ -8,7 +8,7 @@
 //! 2. an identical request already queued, running or done is answered from its record;
 //! 3. a full queue is answered 429 ([`ensure_queue_room`]) before anything is decoded;
 //! 4. the check reserves its input's size plus the most its decode can allocate
-//!    ([`crate::pipelines::PipelineSet::decode_cost`]) from the process's decode budget
+//!    ([`crate::pipeline_set::PipelineSet::decode_cost`]) from the process's decode budget
 //!    ([`DecodeBudget`], `decode_budget_bytes`), waiting at most [`DECODE_WAIT`] and answering
 //!    429 with `Retry-After` otherwise; only then are the input's bytes read from the store and
 //!    decoded, on the blocking pool, and the reservation ends with the check.

@@ -4,10 +4,10 @@
 mod admission;
 mod assets;
 mod body_timeout;
-mod clouds;
 mod dto;
 mod extract;
 mod jobs;
+mod scenes;
 mod strict_json;
 mod submit;
 mod system;
@@ -38,7 +38,7 @@ use crate::metrics::Metrics;
 pub struct AppState {
     pub cfg: Arc<Config>,
     pub jobs: Jobs,
-    pub clouds: crate::clouds::Scenes,
+    pub scenes: crate::scenes::Scenes,
     pub metrics: Metrics,
     /// What the up-front input checks of submissions may decode at once (`api::admission`).
     pub decodes: DecodeBudget,
@@ -95,10 +95,10 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/examples/{name}", get(web::example))
         .route("/v1/assets", post(assets::upload))
         .route("/v1/assets/{id}", get(assets::get))
-        .route("/v1/clouds", post(clouds::create))
-        .route("/v1/clouds/{id}", get(clouds::get).delete(clouds::delete))
-        .route("/v1/clouds/{id}/renders", post(clouds::render))
-        .route("/v1/clouds/{id}/edits/{kind}", post(clouds::edit))
+        .route("/v1/clouds", post(scenes::create))
+        .route("/v1/clouds/{id}", get(scenes::get).delete(scenes::delete))
+        .route("/v1/clouds/{id}/renders", post(scenes::render))
+        .route("/v1/clouds/{id}/edits/{kind}", post(scenes::edit))
         .route("/v1/jobs", get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
         .route("/v1/jobs/{id}/events", get(jobs::events))

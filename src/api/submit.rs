@@ -23,6 +23,7 @@ use super::strict_json::{self, StrictJsonError};
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::{InputRef, SubmitError, Submitted};
+use crate::pipeline_set::Validated;
 use phenomena_engine::ParamError;
 
 #[derive(Debug, Deserialize)]
@@ -98,7 +99,7 @@ pub async fn submit(
     if let Input::Named(id) = &input {
         if let Some(rec) = st
             .jobs
-            .find_by_key(&request_key(pipeline, id, &params))
+            .find_by_key(&request_key(pipeline, id, params.canonical()))
             .await?
         {
             return respond(&st, rec, wait).await;
@@ -106,7 +107,7 @@ pub async fn submit(
     }
 
     let asset = store_input(&st, input).await?;
-    let key = request_key(pipeline, &asset.id, &params);
+    let key = request_key(pipeline, &asset.id, params.canonical());
 
     // An identical request already queued, running or done: no decode, no new job.
     if let Some(rec) = st.jobs.find_by_key(&key).await? {
@@ -125,7 +126,7 @@ pub async fn submit(
         filename: asset.filename,
         aux: Vec::new(),
     };
-    submit_job(&st, pipeline, input, params, key, wait).await
+    submit_job(&st, pipeline, input, params.into_canonical(), key, wait).await
 }
 
 /// [`submit`] with auxiliary inputs: each is stored as an asset, the request key covers them,
@@ -136,7 +137,7 @@ async fn submit_with_aux(
     part: &'static str,
     input: Input,
     aux_inputs: Vec<(&'static str, Input)>,
-    params: serde_json::Value,
+    params: Validated,
     wait: Option<std::time::Duration>,
 ) -> Result<Response, ApiError> {
     let asset = store_input(st, input).await?;
@@ -149,7 +150,7 @@ async fn submit_with_aux(
         key_input.push_str(&format!("+{name}:{}", rec.id));
         aux_assets.push((name, rec));
     }
-    let key = request_key(pipeline, &key_input, &params);
+    let key = request_key(pipeline, &key_input, params.canonical());
     if let Some(rec) = st.jobs.find_by_key(&key).await? {
         return respond(st, rec, wait).await;
     }
@@ -191,7 +192,7 @@ async fn submit_with_aux(
         filename: asset.filename,
         aux,
     };
-    submit_job(st, pipeline, input, params, key, wait).await
+    submit_job(st, pipeline, input, params.into_canonical(), key, wait).await
 }
 
 /// An unknown asset named for an auxiliary part is named by that part's field (`ortho_asset`).
@@ -360,7 +361,7 @@ async fn reserve_decode(
 pub(super) async fn describe_input(
     st: &AppState,
     pipeline: &'static str,
-    params: &serde_json::Value,
+    params: &Validated,
     asset: &crate::store::assets::AssetRecord,
     part: &'static str,
 ) -> Result<serde_json::Value, ApiError> {

@@ -27,7 +27,7 @@ use super::{
     JobsError, Live, Load, Snapshot, StartError, Status, SubmitError, Submitted,
 };
 use crate::metrics::Metrics;
-use crate::pipelines::PipelineSet;
+use crate::pipeline_set::PipelineSet;
 use crate::store::{Store, StoreError};
 
 struct Entry {

@@ -10,8 +10,9 @@ use std::time::{Duration, Instant};
 use phenomena_engine::Control;
 
 use super::{CancelReason, JobError, JobRecord, Live, OutputRecord, StageTiming, Status};
+use crate::error::Problem;
 use crate::metrics::Metrics;
-use crate::pipelines::{PipelineSet, RunError};
+use crate::pipeline_set::{PipelineSet, RunError};
 use crate::store::Store;
 
 /// What running a job needs; shared by a backend's workers.
@@ -75,14 +76,6 @@ impl Control for JobControl {
     }
 }
 
-pub(crate) fn failure(kind: &str, title: &str, detail: impl Into<String>) -> JobError {
-    JobError {
-        kind: format!("{}{kind}", crate::error::PROBLEM_BASE),
-        title: title.to_string(),
-        detail: detail.into(),
-    }
-}
-
 /// Ends a job that was started `max_attempts` times and never reached an end (its worker
 /// process died in every attempt: a crash, an out-of-memory kill): `failed` with the `poisoned`
 /// problem type, and never run again. Both backends call it when they are about to start such a
@@ -92,9 +85,8 @@ pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
     rec.progress = 0.0;
     rec.stage = None;
     rec.finished_at = Some(chrono::Utc::now());
-    rec.error = Some(failure(
-        "poisoned",
-        "Job poisoned",
+    rec.error = Some(JobError::new(
+        Problem::Poisoned,
         format!(
             "the job was started {} times and its worker stopped before the end of each attempt \
              (a crash or an out-of-memory kill); it is not retried again (max_attempts = {max_attempts})",
@@ -120,9 +112,8 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
         Err(e) => {
             tracing::error!(job = %rec.id, error = %e, "input blob unreadable");
             rec.status = Status::Failed;
-            rec.error = Some(failure(
-                "input-missing",
-                "Input unavailable",
+            rec.error = Some(JobError::new(
+                Problem::InputMissing,
                 "the job's input could not be read from the store",
             ));
             return rec;
@@ -212,9 +203,8 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                 Err(e) => {
                     tracing::error!(job = %rec.id, error = %e, "could not store outputs");
                     rec.status = Status::Failed;
-                    rec.error = Some(failure(
-                        "storage",
-                        "Storage unavailable",
+                    rec.error = Some(JobError::new(
+                        Problem::Storage,
                         "the outputs could not be stored (the data directory or blob store is \
                          full or read-only); submit the request again once storage recovers",
                     ));
@@ -224,9 +214,8 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
         Ok(Ok(Err(RunError::Canceled))) => match live.reason() {
             CancelReason::Timeout => {
                 rec.status = Status::Failed;
-                rec.error = Some(failure(
-                    "time-limit",
-                    "Time limit exceeded",
+                rec.error = Some(JobError::new(
+                    Problem::TimeLimit,
                     format!(
                         "the job ran longer than the limit of {} s",
                         timeout.as_secs()
@@ -250,27 +239,15 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
         },
         Ok(Ok(Err(RunError::Input(e)))) => {
             rec.status = Status::Failed;
-            rec.error = Some(failure("invalid-input", "Invalid input", e.to_string()));
+            rec.error = Some(JobError::new(Problem::InvalidInput, e.to_string()));
         }
-        Ok(Ok(Err(RunError::Unprocessable(msg)))) => {
+        Ok(Ok(Err(RunError::Refused { reason, detail }))) => {
             rec.status = Status::Failed;
-            rec.error = Some(failure("unprocessable", "Cannot be done", msg));
-        }
-        Ok(Ok(Err(RunError::Refused {
-            problem,
-            title,
-            detail,
-        }))) => {
-            rec.status = Status::Failed;
-            rec.error = Some(failure(problem, title, detail));
+            rec.error = Some(JobError::new(reason.into(), detail));
         }
         Ok(Ok(Err(RunError::Param(e)))) => {
             rec.status = Status::Failed;
-            rec.error = Some(failure(
-                "invalid-parameter",
-                "Invalid parameter",
-                e.to_string(),
-            ));
+            rec.error = Some(JobError::new(Problem::InvalidParameter, e.to_string()));
         }
         Ok(Err(panic)) => {
             let msg = panic
@@ -280,18 +257,16 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                 .unwrap_or_default();
             tracing::error!(job = %rec.id, panic = %msg, "pipeline panicked");
             rec.status = Status::Failed;
-            rec.error = Some(failure(
-                "internal",
-                "Internal error",
+            rec.error = Some(JobError::new(
+                Problem::Internal,
                 "the pipeline failed unexpectedly",
             ));
         }
         Err(_) => {
             tracing::error!(job = %rec.id, "pipeline task vanished");
             rec.status = Status::Failed;
-            rec.error = Some(failure(
-                "internal",
-                "Internal error",
+            rec.error = Some(JobError::new(
+                Problem::Internal,
                 "the pipeline failed unexpectedly",
             ));
         }

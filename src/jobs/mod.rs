@@ -23,7 +23,7 @@ use std::time::Duration;
 use async_trait::async_trait;
 use tokio::sync::watch;
 
-use crate::pipelines::PipelineSet;
+use crate::pipeline_set::PipelineSet;
 use crate::store::{Store, StoreError};
 pub use record::{
     AuxInput, InputRef, JobError, JobRecord, OutputRecord, Snapshot, StageTiming, Status,
@@ -309,4 +309,17 @@ pub(crate) fn build_pool(threads: usize) -> Result<rayon::ThreadPool, rayon::Thr
         .num_threads(threads)
         .thread_name(|i| format!("pipeline-{i}"))
         .build()
+}
+
+impl From<JobsError> for crate::error::ApiError {
+    fn from(e: JobsError) -> Self {
+        use crate::error::ApiError;
+        match e {
+            JobsError::Store(e) => e.into(),
+            JobsError::Backend(msg) => {
+                tracing::error!(error = %msg, "job backend failure");
+                ApiError::Unavailable("the job system is unavailable; try again later".into())
+            }
+        }
+    }
 }

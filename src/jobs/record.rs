@@ -3,6 +3,8 @@
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 
+use crate::error::Problem;
+
 /// Lifecycle of a job. `queued → running → succeeded | failed | canceled`; a job found `running`
 /// at start-up (the process died mid-job) goes back to `queued`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -54,6 +56,18 @@ pub struct JobError {
     pub kind: String,
     pub title: String,
     pub detail: String,
+}
+
+impl JobError {
+    /// The record of a failure of kind `problem` (its `type` URI and title, as
+    /// [`crate::error`] names them).
+    pub fn new(problem: Problem, detail: impl Into<String>) -> Self {
+        Self {
+            kind: problem.type_uri(),
+            title: problem.job_title().to_string(),
+            detail: detail.into(),
+        }
+    }
 }
 
 /// The input a job reads: a stored asset, plus named auxiliary blobs some pipelines need besides

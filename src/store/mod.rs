@@ -178,6 +178,24 @@ impl Store {
     }
 }
 
+impl From<StoreError> for crate::error::ApiError {
+    fn from(e: StoreError) -> Self {
+        use crate::error::ApiError;
+        match e {
+            StoreError::TooLarge { .. } => {
+                ApiError::PayloadTooLarge("request body too large".into())
+            }
+            StoreError::Upload(detail) => {
+                ApiError::bad_request(format!("the upload failed: {detail}"))
+            }
+            e => {
+                tracing::error!(error = %e, "store failure");
+                ApiError::Unavailable("storage is unavailable; try again later".into())
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

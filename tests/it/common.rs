@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use phenomena::config::Config;
-use phenomena::pipelines::{EnginePipelines, PipelineSet, RunError};
+use phenomena::pipeline_set::{EnginePipelines, PipelineSet, RunError, Validated};
 use phenomena_engine::{Control, InputError, Output, ParamError};
 use serde_json::{json, Value};
 
@@ -37,17 +37,17 @@ impl PipelineSet for Sleepy {
     fn input_part(&self, name: &str) -> Option<&'static str> {
         (name == "sleepy").then_some("data")
     }
-    fn params(&self, _: &str, raw: &Value) -> Result<Value, ParamError> {
-        let p: SleepyParams = phenomena_engine::pipeline::deserialize_params(raw)?;
+    fn params(&self, _: &str, raw: &Value) -> Result<Validated, ParamError> {
+        let p: SleepyParams = phenomena_engine::params::deserialize_params(raw)?;
         if p.stages > 100 {
             return Err(ParamError::new("stages", "must be at most 100"));
         }
-        Ok(serde_json::to_value(p).unwrap())
+        Ok(Validated::json(serde_json::to_value(p).unwrap()))
     }
     fn check_input(
         &self,
         _: &str,
-        _: &Value,
+        _: &Validated,
         input: &[u8],
         _: Option<&str>,
     ) -> Result<(), InputError> {
@@ -105,7 +105,7 @@ impl PipelineSet for WithSleepy {
     fn input_part(&self, name: &str) -> Option<&'static str> {
         Sleepy.input_part(name).or_else(|| self.0.input_part(name))
     }
-    fn params(&self, name: &str, raw: &Value) -> Result<Value, ParamError> {
+    fn params(&self, name: &str, raw: &Value) -> Result<Validated, ParamError> {
         if name == "sleepy" {
             Sleepy.params(name, raw)
         } else {
@@ -115,7 +115,7 @@ impl PipelineSet for WithSleepy {
     fn check_input(
         &self,
         name: &str,
-        p: &Value,
+        p: &Validated,
         input: &[u8],
         f: Option<&str>,
     ) -> Result<(), InputError> {
@@ -157,7 +157,7 @@ impl PipelineSet for WithSleepy {
     fn describe_input(
         &self,
         name: &str,
-        p: &Value,
+        p: &Validated,
         input: &[u8],
         f: Option<&str>,
     ) -> Result<Value, InputError> {
@@ -176,7 +176,7 @@ impl PipelineSet for WithSleepy {
     fn check_with_aux(
         &self,
         name: &str,
-        p: &Value,
+        p: &Validated,
         input: &[u8],
         f: Option<&str>,
         aux: &[(String, Vec<u8>)],

@@ -89,7 +89,7 @@ async fn spec_routes_equal_served_routes() {
         .iter()
         .map(|(m, p)| (m.to_string(), p.to_string()))
         .collect();
-    for kind in phenomena_engine::pipeline::PipelineKind::public() {
+    for kind in phenomena_engine::registry::PipelineKind::public() {
         served.push(("post".into(), format!("/v1/{}", kind.name())));
     }
     served.sort();
@@ -258,7 +258,8 @@ async fn responses_match_the_spec() {
 fn every_parameter_is_documented_with_its_default() {
     // For each pipeline: the resolved defaults the engine reports equal the spec's `default`s,
     // and every parameter the engine accepts is in the spec (and vice versa).
-    use phenomena_engine::pipeline::{Limits, Params, PipelineKind};
+    use phenomena_engine::params::Limits;
+    use phenomena_engine::registry::{PipelineKind, PipelineParams};
     let spec = spec();
     for (kind, schema) in [
         (PipelineKind::SnowTerrain, "SnowTerrainParams"),
@@ -269,7 +270,7 @@ fn every_parameter_is_documented_with_its_default() {
         let props = spec["components"]["schemas"][schema]["properties"]
             .as_object()
             .unwrap();
-        let p = Params::parse(kind, &json!({}), &Limits::default())
+        let p = PipelineParams::parse(kind, &json!({}), &Limits::default())
             .unwrap()
             .canonical();
         for (name, value) in p.as_object().unwrap() {

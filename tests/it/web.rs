@@ -327,16 +327,17 @@ fn studio_in_headless_chromium() {
 /// `target/browser/displaced_flakes.png`. Alone: `cargo test --test it web::displaced_glb`.
 #[test]
 fn displaced_glb_shows_its_flakes_in_three_js() {
-    use phenomena_engine::pipeline::{self, Limits, Params, PipelineKind};
+    use phenomena_engine::params::Limits;
+    use phenomena_engine::registry::{self, PipelineKind, PipelineParams};
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let pw = playwright_dir();
     let file = "teapot_npm.obj";
     let bytes = std::fs::read(root.join("../shared/data/mesh").join(file)).unwrap();
     let l = Limits::default();
     let params = json!({"resolution": 128, "directions": 8, "steps": 6, "width": 64, "height": 48});
-    let p = Params::parse(PipelineKind::SnowCover, &params, &l).unwrap();
-    let job = pipeline::decode(p, &bytes, Some(file), &l).unwrap();
-    let outs = pipeline::run(&job, &phenomena_engine::NoControl).unwrap();
+    let p = PipelineParams::parse(PipelineKind::SnowCover, &params, &l).unwrap();
+    let job = registry::decode(p, &bytes, Some(file), &l).unwrap();
+    let outs = registry::run(&job, &phenomena_engine::NoControl).unwrap();
     let glb = &outs
         .iter()
         .find(|o| o.name == "displaced.glb")

@@ -4,6 +4,10 @@
 
 use crate::geom::Volume;
 
+/// Fraction of the maximum density that counts as cloud: for the sun-direction drag's P, Q and R
+/// (SPEC §3.3), the ambient edit's pinned voxels and κ's column rays.
+pub const DENSITY_THRESHOLD: f32 = 0.01;
+
 /// The grid's placement in the world: voxel `i` along axis `k` has its centre at
 /// `lo[k] + (i + 0.5)·h[k]`.
 #[derive(Debug, Clone, Copy, PartialEq)]

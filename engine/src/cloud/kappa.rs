@@ -11,9 +11,9 @@
 //! Rule: κ = [`TARGET_OPTICAL_DEPTH`] / (the median column density ∫ρ dl of the rays that cross
 //! the cloud), the rays being two parallel bundles ([`RAYS_PER_SIDE`]² each) covering the box
 //! seen along the sun direction and along the default view direction
-//! ([`super::params::ORBIT`]); a ray crosses the cloud when it passes through a voxel with
+//! ([`ORBIT`]); a ray crosses the cloud when it passes through a voxel with
 //! ρ ≥ 1 % of the maximum (the edits' reading of "with density",
-//! [`super::edit::sun_direction::DENSITY_THRESHOLD`]). So the median optical depth through the
+//! [`DENSITY_THRESHOLD`]). So the median optical depth through the
 //! cloud along those rays is exactly [`TARGET_OPTICAL_DEPTH`], whatever the volume's units, grid
 //! size or box. Columns are integrated with the renderer's trilinear samples, one per smallest
 //! voxel edge (as the renderer's default `step`). An explicit κ always wins; an empty volume keeps [`FALLBACK_KAPPA`].
@@ -21,10 +21,18 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::edit::sun_direction::DENSITY_THRESHOLD;
-use super::grid::GridFrame;
+use super::grid::{GridFrame, DENSITY_THRESHOLD};
+use crate::geom::sun_direction as sun_from_angles;
 use crate::geom::Volume;
-use crate::render::terrain::sun_direction as sun_from_angles;
+use crate::params::OrbitDefaults;
+
+/// The cloud pipeline's default orbit: a little above the horizon, the sun (azimuth 150°) to
+/// the camera's left and behind. κ is chosen along its rays when not given.
+pub const ORBIT: OrbitDefaults = OrbitDefaults {
+    azimuth_deg: 200.0,
+    elevation_deg: 12.0,
+    fov_deg: 40.0,
+};
 
 /// The median optical depth the chosen κ gives the cloud along the sun and view rays.
 /// 4: the lit face is bright, the median path keeps e⁻⁴ ≈ 2 % of the light, so the far side is
@@ -116,10 +124,7 @@ fn columns(volume: &Volume, g: &GridFrame, d: [f64; 3], min_rho: f32) -> Vec<f64
 
 /// The unit vector from the default camera toward the volume (the default orbit's view).
 pub fn default_view_direction() -> [f64; 3] {
-    let toward_camera = sun_from_angles(
-        super::params::ORBIT.azimuth_deg,
-        super::params::ORBIT.elevation_deg,
-    );
+    let toward_camera = sun_from_angles(ORBIT.azimuth_deg, ORBIT.elevation_deg);
     toward_camera.map(|x| -x)
 }
 

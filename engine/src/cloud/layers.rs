@@ -124,6 +124,11 @@ impl Layers {
 /// The name of the output (and of a cloud edit job's auxiliary input) that holds the layers.
 pub const LAYERS_FILE: &str = "layers.bin";
 
+/// The `layers.bin` output (a render's or an edit's).
+pub(crate) fn layers_bin(bytes: Vec<u8>) -> crate::Output {
+    crate::Output::new(LAYERS_FILE, "application/octet-stream", bytes)
+}
+
 /// The blob's magic.
 const MAGIC: &[u8; 8] = b"PHLAY1\0\0";
 /// The magic of layers with a multiple-scattering part.

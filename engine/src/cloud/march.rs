@@ -31,8 +31,8 @@ use super::light::{sweep, SunLight, SweepOut};
 use super::multiple::{solve, Medium, MsField, MsOptions};
 use super::skip::{DensityRows, EmptySpace};
 use super::state::{AmbientField, CloudState};
+use crate::geom::camera::Camera;
 use crate::geom::Volume;
-use crate::render::camera::Camera;
 use crate::{Canceled, Control};
 
 /// The march stops when the view transmittance falls below this.

@@ -12,6 +12,7 @@
 pub mod edit;
 pub mod fastexp;
 pub mod grid;
+pub mod input;
 pub mod kappa;
 pub mod layers;
 pub mod light;
@@ -19,13 +20,14 @@ pub mod march;
 pub mod multigrid;
 pub mod multiple;
 pub mod params;
-pub mod procedural;
 pub mod run;
 pub mod skip;
 pub mod state;
 
+pub use edit::job::CloudEditParams;
 pub use edit::{apply_edit, edit_outputs, edit_outputs_with, Edit, EditError, EditOutcome};
+pub use input::{AMBIENT_FIELD, LAYERS};
 pub use multiple::Scattering;
-pub use params::{Layer, Params, View};
+pub use params::{CloudParams, LayerOutput, View};
 pub use run::run;
 pub use state::{AmbientField, CloudState};

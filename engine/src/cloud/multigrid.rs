@@ -85,9 +85,9 @@ use rayon::prelude::*;
 use crate::{Canceled, Control};
 use aggregate::Prolongation;
 use dense::Dense;
+use fine::fine_level;
 use fine::FineLevel;
-use fine::{fine_level, Rgb};
-use graph::{dot3, Adjacency, Graph};
+use graph::{dot3, Adjacency, Graph, Rgb};
 pub use llw::llw_weights;
 
 /// Coarsening stops once a level has at most this many points; that level is solved by a

@@ -4,18 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::state::{CloudState, WireState, STATE_FIELDS};
-use crate::params::{camera_spec, image_size, CameraSpec, OrbitDefaults, WireCamera};
-use crate::pipeline::Limits;
-use crate::render::camera::Camera;
+use crate::geom::camera::Camera;
+use crate::params::Limits;
+use crate::params::{camera_spec, image_size, CameraSpec, WireCamera};
 use crate::ParamError;
 
-/// The cloud pipeline's default orbit: a little above the horizon, the sun (azimuth 150°) to
-/// the camera's left and behind.
-pub const ORBIT: OrbitDefaults = OrbitDefaults {
-    azimuth_deg: 200.0,
-    elevation_deg: 12.0,
-    fov_deg: 40.0,
-};
+pub use super::kappa::ORBIT;
 
 /// Default image size.
 pub const DEFAULT_SIZE: (u32, u32) = (800, 600);
@@ -23,7 +17,7 @@ pub const DEFAULT_SIZE: (u32, u32) = (800, 600);
 /// An extra output layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Layer {
+pub enum LayerOutput {
     /// `direct.png`: I_l·Ī (single scattering).
     Direct,
     /// `multiple.png`: I_l·M, the multiple-scattering layer (zero in single mode).
@@ -41,10 +35,10 @@ pub enum Layer {
 #[serde(untagged)]
 pub(crate) enum WireLayers {
     All(bool),
-    List(Vec<Layer>),
+    List(Vec<LayerOutput>),
 }
 
-/// A view: the image size and camera an edit was made in (same wire shape as [`Params`]).
+/// A view: the image size and camera an edit was made in (same wire shape as [`CloudParams`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct View {
     /// Image width, pixels, 16–8192. Default 800.
@@ -94,7 +88,7 @@ struct WireRest {
 
 /// Validated parameters of one `cloud` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Params {
+pub struct CloudParams {
     /// Output width, pixels, 16–8192. Default 800.
     pub width: u32,
     /// Output height, pixels, 16–8192. Default 600.
@@ -108,7 +102,7 @@ pub struct Params {
     pub state: CloudState,
     /// Extra layers to write (`direct.png`, `multiple.png`, `ambient.png`, `layers.bin`).
     /// Default none.
-    pub layers: Vec<Layer>,
+    pub layers: Vec<LayerOutput>,
     /// World box `[[min], [max]]` of the volume; null = SPEC §3's default (unit cube scaled to
     /// the grid's aspect, base at Y = 0). Each min < max, finite, within ±10⁹, each side ≥ 10⁻⁶
     /// and ≥ 10⁻⁶ of its axis' largest |coordinate| ([`crate::geom::sanity::check_box`]).
@@ -118,7 +112,7 @@ pub struct Params {
     pub dims: Option<[usize; 3]>,
 }
 
-impl Params {
+impl CloudParams {
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
@@ -134,24 +128,27 @@ impl Params {
             }
         }
         let ws: WireState =
-            crate::pipeline::deserialize_params(&serde_json::Value::Object(state_obj))?;
+            crate::params::deserialize_params(&serde_json::Value::Object(state_obj))?;
         let state = CloudState::from_wire(ws)?;
-        let w: WireRest =
-            crate::pipeline::deserialize_params(&serde_json::Value::Object(rest_obj))?;
+        let w: WireRest = crate::params::deserialize_params(&serde_json::Value::Object(rest_obj))?;
         let view = View::from_wire(w.width, w.height, w.camera, limits)?;
         let layers = match w.layers {
             None | Some(WireLayers::All(false)) => vec![],
             Some(WireLayers::All(true)) if state.scattering.is_single() => {
-                vec![Layer::Direct, Layer::Ambient]
+                vec![LayerOutput::Direct, LayerOutput::Ambient]
             }
-            Some(WireLayers::All(true)) => vec![Layer::Direct, Layer::Multiple, Layer::Ambient],
+            Some(WireLayers::All(true)) => vec![
+                LayerOutput::Direct,
+                LayerOutput::Multiple,
+                LayerOutput::Ambient,
+            ],
             Some(WireLayers::List(l)) => {
                 let mut out = vec![];
                 for x in [
-                    Layer::Direct,
-                    Layer::Multiple,
-                    Layer::Ambient,
-                    Layer::Linear,
+                    LayerOutput::Direct,
+                    LayerOutput::Multiple,
+                    LayerOutput::Ambient,
+                    LayerOutput::Linear,
                 ] {
                     if l.contains(&x) {
                         out.push(x);
@@ -227,9 +224,9 @@ mod tests {
             json!({"layers": ["ambient"], "sun_azimuth_deg": 10, "sun_elevation_deg": 60}),
             json!({"layers": true, "scattering": "multiple", "albedo": 0.9}),
         ] {
-            let p = Params::from_json(&v, &l).unwrap();
+            let p = CloudParams::from_json(&v, &l).unwrap();
             let c = serde_json::to_value(&p).unwrap();
-            assert_eq!(Params::from_json(&c, &l).unwrap(), p, "{c}");
+            assert_eq!(CloudParams::from_json(&c, &l).unwrap(), p, "{c}");
         }
     }
 
@@ -244,7 +241,11 @@ mod tests {
             (json!({"bounds": [[0, 0, 0], [0, 1, 1]]}), "bounds"),
             (json!({"camera": {"fov_deg": 500}}), "camera.fov_deg"),
         ] {
-            assert_eq!(Params::from_json(&v, &l).unwrap_err().field, field, "{v}");
+            assert_eq!(
+                CloudParams::from_json(&v, &l).unwrap_err().field,
+                field,
+                "{v}"
+            );
         }
     }
 }

@@ -4,10 +4,9 @@
 //! multiple mode the preparation also solves the multiple-scattering source term
 //! ([`super::multiple`]).
 
-use super::edit::layers_bin;
-use super::layers::identity;
+use super::layers::{identity, layers_bin};
 use super::march::{render_layers, Layers, Prepared, Show};
-use super::params::{Layer, Params, View};
+use super::params::{CloudParams, LayerOutput, View};
 use super::state::{AmbientField, CloudState};
 use crate::formats::png_write::encode_rgba;
 use crate::geom::Volume;
@@ -52,7 +51,7 @@ pub fn state_json(state: &CloudState) -> Output {
 /// ([`super::kappa`]) and `state.json` states the value and the rule.
 pub fn run(
     volume: &Volume,
-    params: &Params,
+    params: &CloudParams,
     ambient: Option<&AmbientField>,
     ctl: &dyn Control,
 ) -> Result<Vec<Output>, Canceled> {
@@ -63,10 +62,10 @@ pub fn run(
     for l in &params.layers {
         // Layers are for compositing: straight alpha, no background.
         let (name, show) = match l {
-            Layer::Direct => ("direct.png", Show::Direct),
-            Layer::Multiple => ("multiple.png", Show::Multiple),
-            Layer::Ambient => ("ambient.png", Show::Ambient),
-            Layer::Linear => {
+            LayerOutput::Direct => ("direct.png", Show::Direct),
+            LayerOutput::Multiple => ("multiple.png", Show::Multiple),
+            LayerOutput::Ambient => ("ambient.png", Show::Ambient),
+            LayerOutput::Linear => {
                 let id = identity(&params.view(), &state);
                 out.push(layers_bin(layers.to_bytes(&id)));
                 continue;

@@ -9,9 +9,9 @@ use serde::{Deserialize, Serialize};
 
 use super::kappa::{self, KappaChoice};
 use super::multiple::Scattering;
+use crate::geom::sun_direction as sun_from_angles;
 use crate::geom::Volume;
-use crate::params::{parse_hex_color, range};
-use crate::render::terrain::sun_direction as sun_from_angles;
+use crate::params::{range, Color};
 use crate::{InputError, ParamError};
 
 /// The parameters of the rendering equation (paper Eqs. 1–3) for one version of a cloud scene.
@@ -42,9 +42,9 @@ pub struct CloudState {
     /// Henyey–Greenstein asymmetry g of the sun term, −0.99–0.99; 0 = isotropic (the paper).
     /// Default 0.
     pub anisotropy: f64,
-    /// Background colour `#rrggbb` (sRGB) to composite over; `null` keeps transparent sky.
-    /// Default null.
-    pub background: Option<String>,
+    /// Background colour `#rrggbb` (sRGB, lower case) to composite over; `null` keeps
+    /// transparent sky. Default null.
+    pub background: Option<Color>,
     /// Ray-march step in voxels (of the smallest voxel edge), 0.1–4. Default 1: one trilinear
     /// sample per voxel crossed; against the brute-force integrator (test
     /// `cloud::renderer_matches_a_brute_force_integrator`) it stays within 1 % RMS, and it
@@ -138,7 +138,7 @@ impl CloudState {
     /// replaced by `sun_azimuth_deg` (compass, 0–360) and `sun_elevation_deg` (−90–90), both
     /// required together and not mixed with `sun_direction`.
     pub fn from_json(v: &serde_json::Value) -> Result<Self, ParamError> {
-        let w: WireState = crate::pipeline::deserialize_params(v)?;
+        let w: WireState = crate::params::deserialize_params(v)?;
         Self::from_wire(w)
     }
 
@@ -186,10 +186,7 @@ impl CloudState {
             }
         };
         let background = match w.background {
-            Some(s) => {
-                parse_hex_color("background", &s)?;
-                Some(s.to_ascii_lowercase())
-            }
+            Some(s) => Some(Color::parse("background", &s)?.lowercase()),
             None => None,
         };
         let kappa = match w.kappa {
@@ -240,11 +237,9 @@ impl CloudState {
         }
     }
 
-    /// The background as sRGB bytes (validated when the state was built; `None` if absent).
+    /// The background as sRGB bytes (`None` if absent).
     pub fn background_srgb(&self) -> Option<[u8; 3]> {
-        self.background
-            .as_deref()
-            .and_then(|s| parse_hex_color("background", s).ok())
+        self.background.as_ref().map(Color::srgb8)
     }
 
     /// `state.json`: pretty JSON of the resolved state.

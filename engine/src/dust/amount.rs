@@ -40,6 +40,7 @@ use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
 use crate::geom::mesh::Mesh;
+use crate::geom::vec::{unit, Vec3};
 
 /// The dust-amount model of SPEC §4 step 1.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,7 +77,7 @@ impl Default for AmountModel {
 pub fn vertex_normals(mesh: &Mesh) -> Vec<[f32; 3]> {
     if let Some(n) = &mesh.normals {
         if n.len() == mesh.positions.len() {
-            return n.iter().map(|v| normalize(*v)).collect();
+            return n.iter().map(|v| unit(*v)).collect();
         }
     }
     let mut acc = vec![[0.0f32; 3]; mesh.positions.len()];
@@ -88,16 +89,7 @@ pub fn vertex_normals(mesh: &Mesh) -> Vec<[f32; 3]> {
             }
         }
     }
-    acc.into_iter().map(normalize).collect()
-}
-
-fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 && l.is_finite() {
-        [v[0] / l, v[1] / l, v[2] / l]
-    } else {
-        [0.0; 3]
-    }
+    acc.into_iter().map(unit).collect()
 }
 
 /// The directional factor K · max(0, N·U)^s (no exposure). `n` and `u` are unit vectors.
@@ -138,17 +130,10 @@ fn tangent_frame(u: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     } else {
         [0.0, 1.0, 0.0]
     };
-    let t = normalize(cross(helper, u));
-    let b = cross(u, t);
+    let u = Vec3::from(u);
+    let t = unit(Vec3::from(helper).cross(u).to_array());
+    let b = u.cross(Vec3::from(t)).to_array();
     (t, b)
-}
-
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// The scene for the exposure rays: obvhs's compressed wide BVH (CWBVH, "medium" SAH/PLOC build)
@@ -253,9 +238,8 @@ impl ExposureScene {
 /// Rodrigues rotation of `v` about the unit axis `k` by the angle with sine `s`, cosine `c`.
 #[inline]
 fn rotate_about(v: [f32; 3], k: [f32; 3], s: f32, c: f32) -> [f32; 3] {
-    let kxv = cross(k, v);
-    let kv = k[0] * v[0] + k[1] * v[1] + k[2] * v[2];
-    std::array::from_fn(|i| v[i] * c + kxv[i] * s + k[i] * kv * (1.0 - c))
+    let (v, k) = (Vec3::from(v), Vec3::from(k));
+    (v * c + k.cross(v) * s + k * k.dot(v) * (1.0 - c)).to_array()
 }
 
 /// Per-vertex rotation angle of the ray set about U: a hash of the vertex index mapped to
@@ -272,7 +256,7 @@ fn vertex_angle(i: usize) -> f32 {
 /// Per-vertex exposure E(P) ∈ [0, 1] (all 1 when `model.exposure` is off). `normals` as from
 /// [`vertex_normals`]. Parallel over vertices; allocates the result and the BVH.
 pub fn vertex_exposure(mesh: &Mesh, normals: &[[f32; 3]], model: &AmountModel) -> Vec<f32> {
-    let u = normalize(model.source);
+    let u = unit(model.source);
     if !model.exposure || model.exposure_rays == 0 || u == [0.0; 3] {
         return vec![1.0; mesh.positions.len()];
     }
@@ -298,7 +282,7 @@ pub fn vertex_exposure(mesh: &Mesh, normals: &[[f32; 3]], model: &AmountModel) -
 pub fn dust_amount(mesh: &Mesh, model: &AmountModel) -> Vec<f32> {
     let normals = vertex_normals(mesh);
     let exposure = vertex_exposure(mesh, &normals, model);
-    let u = normalize(model.source);
+    let u = unit(model.source);
     normals
         .par_iter()
         .zip(exposure.par_iter())

@@ -13,7 +13,7 @@
 //! their brightness as the renderer does, their opacity doubled for the eye, over a dark
 //! background, opaque; under 1 MB at the defaults (32 shells).
 //!
-//! **Shell meshes.** Layer i covers the triangles that reach it ([`super::shells::layer`]), its
+//! **Shell meshes.** ShellLayer i covers the triangles that reach it ([`super::shells::layer`]), its
 //! vertices raised along the normal by (i / shells)·`max_thickness`·D, with the base normals and
 //! texture coordinates in tiles: the mesh's UVs rescaled, or box-projected UVs
 //! ([`super::mapping::box_uvs`], vertices split where the projection plane changes). The

@@ -28,5 +28,5 @@ pub mod shells;
 pub mod surface;
 pub mod texture;
 
-pub use params::Params;
+pub use params::DustParams;
 pub use run::run;

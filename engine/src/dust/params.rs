@@ -8,9 +8,8 @@ use serde::{Deserialize, Serialize};
 
 use super::amount::AmountModel;
 use super::fibers::FiberParams;
-use crate::mesh_view::{MeshView, MeshViewDefaults, UpAxisParam, WireMeshView};
-use crate::params::{parse_hex_color, range, WireCamera};
-use crate::pipeline::Limits;
+use crate::geom::mesh::UpAxis;
+use crate::params::{range, Color, Limits, MeshView, MeshViewDefaults, WireCamera, WireMeshView};
 use crate::render::image::srgb8_to_linear;
 use crate::ParamError;
 
@@ -22,6 +21,9 @@ pub const MAX_TEXELS: u64 = 1 << 26;
 /// trail texel (2^25 ≈ 0.5 GB), e.g. 680,000 fibres of 48 steps.
 pub const MAX_TRAIL: u64 = 1 << 25;
 
+/// Default `dust_color`: a light grey-beige.
+const DEFAULT_DUST_COLOR: &str = "#e7e2da";
+
 /// Wire parameters (all optional; unknown names are rejected).
 #[derive(Debug, Default, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -30,7 +32,7 @@ pub struct WireParams {
     pub height: Option<u32>,
     pub camera: Option<WireCamera>,
     pub seed: Option<u64>,
-    pub up_axis: Option<UpAxisParam>,
+    pub up_axis: Option<UpAxis>,
     pub sun_azimuth_deg: Option<f64>,
     pub sun_elevation_deg: Option<f64>,
     pub fog: Option<f32>,
@@ -58,7 +60,7 @@ pub struct WireParams {
 
 /// Validated parameters of one `dust` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Params {
+pub struct DustParams {
     /// Output size, camera, up axis, sun, fog (default 0: dust is an indoor, close-up
     /// phenomenon) and shadows, shared with `snow-cover`.
     #[serde(flatten)]
@@ -108,7 +110,7 @@ pub struct Params {
     pub fiber_opacity: f32,
     /// Dust colour, sRGB hex. Default `#e7e2da` (light grey-beige house dust; the fibres'
     /// brightness darkens it, see [`super::render::DEPTH_SHADE`]).
-    pub dust_color: String,
+    pub dust_color: Color,
     /// Close-up: the orbit camera circles the dustiest point of the surface the default view
     /// sees (see [`super::run::close_up_target`]) instead of the mesh's centre, at
     /// `camera.distance` from it (default: 1/10 of the mesh's bounding-box diagonal), so single
@@ -125,11 +127,11 @@ fn unit3(field: &str, v: Option<[f32; 3]>, default: [f32; 3]) -> Result<[f32; 3]
     Ok([v[0] / l, v[1] / l, v[2] / l])
 }
 
-impl Params {
+impl DustParams {
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
-        let w: WireParams = crate::pipeline::deserialize_params(v)?;
+        let w: WireParams = crate::params::deserialize_params(v)?;
         let view = MeshView::from_wire(
             WireMeshView {
                 width: w.width,
@@ -159,8 +161,10 @@ impl Params {
                 format!("must be less than fiber_length ({fiber_length})"),
             ));
         }
-        let dust_color = w.dust_color.clone().unwrap_or_else(|| "#e7e2da".into());
-        parse_hex_color("dust_color", &dust_color)?;
+        let dust_color = Color::parse(
+            "dust_color",
+            w.dust_color.as_deref().unwrap_or(DEFAULT_DUST_COLOR),
+        )?;
         let shells = range("shells", w.shells, 32, 1, 128)?;
         let texture_size = range("texture_size", w.texture_size, 512, 64, 4096)?;
         let texels = u64::from(shells) * u64::from(texture_size) * u64::from(texture_size);
@@ -194,7 +198,7 @@ impl Params {
                 "needs the orbit camera (azimuth_deg/elevation_deg/distance), not eye/target",
             ));
         }
-        Ok(Params {
+        Ok(DustParams {
             view,
             seed: w.seed.unwrap_or(0),
             stickiness: range("stickiness", w.stickiness, 1.0, 0.0, 4.0)?,
@@ -230,14 +234,9 @@ impl Params {
         }
     }
 
-    /// The dust colour, linear RGB (validated in [`Params::from_json`]; grey if it were not).
+    /// The dust colour, linear RGB.
     pub fn dust_color_linear(&self) -> [f32; 3] {
-        parse_hex_color("dust_color", &self.dust_color).map_or([0.5; 3], |c| c.map(srgb8_to_linear))
-    }
-
-    /// The dust colour, sRGB bytes (grey if it were not valid).
-    pub fn dust_color_srgb8(&self) -> [u8; 3] {
-        parse_hex_color("dust_color", &self.dust_color).unwrap_or([128; 3])
+        self.dust_color.srgb8().map(srgb8_to_linear)
     }
 
     /// The fibre parameters (SPEC §4 step 3).
@@ -260,12 +259,12 @@ mod tests {
 
     #[test]
     fn defaults_match_the_model_defaults() {
-        let p = Params::from_json(&json!({}), &Limits::default()).unwrap();
+        let p = DustParams::from_json(&json!({}), &Limits::default()).unwrap();
         assert_eq!(p.amount_model(), AmountModel::default());
         assert_eq!(p.fiber_params(), FiberParams::default());
         // The canonical form round-trips through the wire form.
         let v = serde_json::to_value(&p).unwrap();
-        let q = Params::from_json(&v, &Limits::default()).unwrap();
+        let q = DustParams::from_json(&v, &Limits::default()).unwrap();
         assert_eq!(p, q);
     }
 
@@ -289,7 +288,7 @@ mod tests {
                 "close_up",
             ),
         ] {
-            let e = Params::from_json(&v, &l).unwrap_err();
+            let e = DustParams::from_json(&v, &l).unwrap_err();
             assert_eq!(e.field, field, "{v}: {e}");
         }
     }

@@ -50,8 +50,8 @@ use super::mapping::Mapping;
 use super::shells::{layer, layer_fraction};
 use super::texture::{noise_at, ShellTexture};
 use crate::control::{Canceled, Control};
+use crate::geom::camera::Camera;
 use crate::geom::Mesh;
-use crate::render::camera::Camera;
 use crate::render::mesh::{MeshRenderer, Overlay};
 use crate::render::raster::{Mesh as RMesh, Rasterizer, VisBuffer, BAND, NO_TRI};
 
@@ -66,12 +66,12 @@ pub struct Shells<'a> {
     pub amount: &'a [f32],
     /// Height of the top layer where D = 1, metres.
     pub thickness: f32,
-    /// Layer count.
+    /// ShellLayer count.
     pub shells: u32,
     pub mapping: &'a Mapping,
     /// Texels per metre on the surface (texture side / tile size).
     pub texels_per_metre: f32,
-    /// Layer i's texture is `textures[i − 1]`.
+    /// ShellLayer i's texture is `textures[i − 1]`.
     pub textures: &'a [ShellTexture],
     /// The noise field at texture resolution (square, side = `noise_side`).
     pub noise: &'a [f32],

@@ -20,14 +20,15 @@ use super::export::{dusty_glb, TextureAtlas};
 use super::fibers::{fiber_texture, shell_fiber_count};
 use super::mapping::Mapping;
 use super::noise::TileableNoise;
-use super::params::Params;
+use super::params::DustParams;
 use super::render::{shell_overlay, Shells};
 use super::surface::{crease_split, refine, MAX_REFINED_TRIANGLES};
 use super::texture::ShellTexture;
+use crate::formats::mesh::decode_upright;
 use crate::formats::png_write::encode_rgba;
+use crate::geom::camera::Camera;
 use crate::geom::Mesh;
-use crate::pipeline::Limits;
-use crate::render::camera::Camera;
+use crate::params::Limits;
 use crate::render::image::srgb_to_linear;
 use crate::render::mesh::{MeshColors, MeshInstance, MeshLighting, MeshRenderer};
 use crate::{Canceled, Control, InputError, Output};
@@ -37,26 +38,17 @@ use crate::{Canceled, Control, InputError, Output};
 /// triangle, so 2^25 bounds them near 1.2 GB (e.g. 32 shells over a million triangles).
 pub const MAX_SHELL_TRIANGLES: u64 = 1 << 25;
 
-/// Decodes the mesh (see [`crate::mesh_view::MeshView::decode`]) and checks that its shells stay
-/// within [`MAX_SHELL_TRIANGLES`].
+/// Decodes the mesh with the files it refers to (see [`decode_upright`] and
+/// [`crate::formats::mesh::Sidecars`]) and checks that its shells stay within
+/// [`MAX_SHELL_TRIANGLES`].
 pub fn decode(
     bytes: &[u8],
     filename: Option<&str>,
-    p: &Params,
-    limits: &Limits,
-) -> Result<Mesh, InputError> {
-    decode_with(bytes, filename, &[], p, limits)
-}
-
-/// [`decode`] with the files the mesh refers to (see [`crate::formats::mesh::Sidecars`]).
-pub fn decode_with(
-    bytes: &[u8],
-    filename: Option<&str>,
     sidecars: &[(String, Vec<u8>)],
-    p: &Params,
+    p: &DustParams,
     limits: &Limits,
 ) -> Result<Mesh, InputError> {
-    let mesh = p.view.decode_with(bytes, filename, sidecars, limits)?;
+    let mesh = decode_upright(bytes, filename, sidecars, p.view.up_axis, limits)?;
     let tris = mesh.triangles.len().max(MAX_REFINED_TRIANGLES) as u64;
     let shell_tris = tris * u64::from(p.shells);
     if shell_tris > MAX_SHELL_TRIANGLES {
@@ -105,7 +97,7 @@ fn diagonal(mesh: &Mesh) -> f32 {
         .unwrap_or(1.0)
 }
 
-/// The close-up's target ([`Params::close_up`]): of the vertices with at least 90 % of the
+/// The close-up's target ([`DustParams::close_up`]): of the vertices with at least 90 % of the
 /// largest D, the one nearest to `eye` (the default view's eye, so the point lies on the side
 /// that view sees); the mesh's centre when no vertex has dust.
 pub fn close_up_target(mesh: &Mesh, amount: &[f32], eye: [f64; 3]) -> [f64; 3] {
@@ -130,7 +122,7 @@ pub fn close_up_target(mesh: &Mesh, amount: &[f32], eye: [f64; 3]) -> [f64; 3] {
 }
 
 /// Runs the pipeline on a decoded mesh.
-pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+pub fn run(input: &Mesh, p: &DustParams, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let mut timings: Vec<(&str, f64)> = Vec::new();
     let mut lap = |name: &'static str, t0: Instant| {
@@ -196,7 +188,7 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
         dust_color: p.dust_color_linear(),
     };
     let (w, h) = (p.view.width, p.view.height);
-    let light = p.view.lighting(&mesh);
+    let light = MeshLighting::for_view(&p.view, &mesh);
     let mut camera = p.view.camera_for(&mesh, w, h);
     if p.close_up {
         if let crate::params::CameraSpec::Orbit {
@@ -254,7 +246,7 @@ pub fn run(input: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, C
     let t0 = Instant::now();
     let render_png = encode_rgba(&image);
     let amount_png = encode_rgba(&amount_image);
-    let fibers_png = encode_rgba(&atlas.preview(p.dust_color_srgb8()));
+    let fibers_png = encode_rgba(&atlas.preview(p.dust_color.srgb8()));
     let glb = dusty_glb(
         &shells,
         &atlas,

@@ -65,8 +65,8 @@ pub fn triangle_reaches(d: [f32; 3], i: u32, shells: u32) -> bool {
 /// The part of the mesh that layer `i` (1-based) covers: the triangles that reach it
 /// ([`triangle_reaches`]) and only the vertices they use, renumbered in first-use order.
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct Layer {
-    /// Layer number, 1 = bottom.
+pub struct ShellLayer {
+    /// ShellLayer number, 1 = bottom.
     pub index: u32,
     /// Base-mesh vertex of each layer vertex.
     pub vertices: Vec<u32>,
@@ -85,10 +85,10 @@ pub fn layer(
     i: u32,
     shells: u32,
     remap: &mut [u32],
-) -> Layer {
-    let mut out = Layer {
+) -> ShellLayer {
+    let mut out = ShellLayer {
         index: i,
-        ..Layer::default()
+        ..ShellLayer::default()
     };
     for (t, tri) in triangles.iter().enumerate() {
         let d = tri.map(|v| amount.get(v as usize).copied().unwrap_or(0.0));

@@ -23,7 +23,7 @@
 //! **Refined.** D and the exposure live on the vertices, so a floor made of one quad would carry
 //! one value per corner and could not be thinner under a table. [`refine`] splits edges longer
 //! than 1/[`EDGES_PER_DIAGONAL`] of the bounding-box diagonal (per part, by edge midpoints,
-//! crack-free: snow-cover's [`crate::snow_cover::shape::subdivide`]), up to
+//! crack-free: [`crate::geom::subdivide::subdivide`], shared with the snow cover), up to
 //! [`MAX_REFINED_TRIANGLES`] triangles; normals, UVs and vertex colours are interpolated to the
 //! new vertices (textures and parts are shared).
 //! Finely tessellated meshes (the Stanford models) are left as they are.
@@ -80,7 +80,7 @@ pub fn refine(mesh: &mut Mesh, normals: &mut Vec<[f32; 3]>) {
         let budget = cap.saturating_sub(total - before);
         let uvs = &mut mesh.uvs;
         let colors = &mut mesh.colors;
-        crate::snow_cover::shape::subdivide_with(
+        crate::geom::subdivide::subdivide_with(
             &mut mesh.positions,
             &mut tris,
             max_len,

@@ -6,12 +6,21 @@
 //! Encoding into a `Vec` cannot fail for valid dimensions; the `png` errors that remain (a buffer
 //! whose length disagrees with the dimensions) are caller bugs and panic.
 
-use crate::render::image::RgbaImage;
+/// What the RGBA encoders read: an 8-bit image, row-major, row 0 at the top, 4 bytes per pixel
+/// (sRGB-encoded R, G, B and straight alpha). The renderer's image type implements it; the
+/// encoders need nothing else of it.
+pub trait RgbaPixels {
+    /// Width and height, pixels.
+    fn size(&self) -> (u32, u32);
+    /// `4 · width · height` bytes.
+    fn rgba(&self) -> &[u8];
+}
 
 /// Encode an 8-bit sRGB RGBA image (straight alpha) as PNG. Allocates the output (~1–3 bytes per
-/// pixel for renders). Panics when `img.data.len() != 4·width·height`.
-pub fn encode_rgba(img: &RgbaImage) -> Vec<u8> {
-    encode(img.width, img.height, png::ColorType::Rgba, &img.data)
+/// pixel for renders). Panics when the pixels are not `4·width·height` bytes.
+pub fn encode_rgba(img: &impl RgbaPixels) -> Vec<u8> {
+    let (width, height) = img.size();
+    encode(width, height, png::ColorType::Rgba, img.rgba())
 }
 
 /// Encode an 8-bit greyscale image (e.g. the descriptor preview). Panics when
@@ -159,12 +168,11 @@ impl RgbaPngStream {
 
     /// The PNG of `img` (the image whose rows were offered): [`encode_rgba`]'s bytes. Falls
     /// back to [`encode_rgba`] when not every row was offered or the compressor failed. Panics
-    /// when `img.data.len() != 4·width·height` (a caller bug).
-    pub fn finish(self, img: &RgbaImage) -> Vec<u8> {
+    /// when the pixels are not `4·width·height` bytes (a caller bug).
+    pub fn finish(self, img: &impl RgbaPixels) -> Vec<u8> {
         assert!(
-            img.width == self.width
-                && img.height == self.height
-                && img.data.len() == self.width as usize * self.height as usize * 4,
+            img.size() == (self.width, self.height)
+                && img.rgba().len() == self.width as usize * self.height as usize * 4,
             "image does not match the stream"
         );
         self.drain(true);
@@ -243,18 +251,16 @@ fn filter_sub_rgba(line: &[u8], out: &mut Vec<u8>) {
 /// Full frames (no sub-rectangles), blend op `Source`, dispose op `None`; same colour settings
 /// and deflate level as [`encode_rgba`]. Allocates the output (~1–3 bytes per pixel per frame).
 /// Panics when `frames` is empty or the frames differ in size (caller bugs).
-pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
+pub fn encode_apng<F: RgbaPixels>(frames: &[F], delay_ms: u16) -> Vec<u8> {
     assert!(!frames.is_empty(), "an animated PNG needs a frame");
-    let (width, height) = (frames[0].width, frames[0].height);
+    let (width, height) = frames[0].size();
     for f in frames {
         assert!(
-            f.width == width
-                && f.height == height
-                && f.data.len() == width as usize * height as usize * 4,
+            f.size() == (width, height) && f.rgba().len() == width as usize * height as usize * 4,
             "APNG frames must share one size"
         );
     }
-    let mut out = Vec::with_capacity(frames.len() * (frames[0].data.len() / 2 + 64) + 1024);
+    let mut out = Vec::with_capacity(frames.len() * (frames[0].rgba().len() / 2 + 64) + 1024);
     {
         let mut enc = encoder(&mut out, width, height, png::ColorType::Rgba);
         // These only fail for zero frames or a zero denominator, excluded above; writing into a
@@ -268,7 +274,7 @@ pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
             let mut writer = enc.write_header().expect("png header into a Vec");
             for f in frames {
                 writer
-                    .write_image_data(&f.data)
+                    .write_image_data(f.rgba())
                     .expect("png frame into a Vec");
             }
             writer.finish().expect("png end into a Vec");
@@ -280,6 +286,33 @@ pub fn encode_apng(frames: &[RgbaImage], delay_ms: u16) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A bare RGBA buffer (the encoders' tests need no renderer).
+    struct RgbaImage {
+        width: u32,
+        height: u32,
+        data: Vec<u8>,
+    }
+
+    impl RgbaImage {
+        fn new_filled(width: u32, height: u32, rgba: [u8; 4]) -> Self {
+            let n = width as usize * height as usize;
+            Self {
+                width,
+                height,
+                data: rgba.repeat(n),
+            }
+        }
+    }
+
+    impl RgbaPixels for RgbaImage {
+        fn size(&self) -> (u32, u32) {
+            (self.width, self.height)
+        }
+        fn rgba(&self) -> &[u8] {
+            &self.data
+        }
+    }
 
     #[test]
     fn stream_matches_encode_rgba() {
@@ -318,7 +351,7 @@ mod tests {
     #[test]
     fn round_trip_rgba_and_gray() {
         let mut img = RgbaImage::new_filled(5, 3, [10, 20, 30, 255]);
-        img.set_pixel(4, 2, [1, 2, 3, 0]);
+        img.data[4 * 14..].copy_from_slice(&[1, 2, 3, 0]);
         let bytes = encode_rgba(&img);
         let dec = png::Decoder::new(std::io::Cursor::new(bytes));
         let mut r = dec.read_info().unwrap();

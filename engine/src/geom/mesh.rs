@@ -11,6 +11,19 @@
 
 use std::sync::Arc;
 
+use serde::{Deserialize, Serialize};
+
+/// Which file axis points up, for formats without a fixed convention (OBJ, STL, PLY); the mesh
+/// pipelines' `up_axis` parameter (`"y"`, `"z"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    /// +Y is up (glTF, most OBJ exporters): no change.
+    Y,
+    /// +Z is up (CAD, 3-D printing, scanners): rotated by (x, y, z) → (x, z, −y).
+    Z,
+}
+
 /// How a texture repeats outside [0, 1] (glTF sampler `wrapS`/`wrapT`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TextureWrap {

@@ -459,7 +459,7 @@ fn snap_offset(o: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::control::NoControl;
-    use crate::render::camera::Camera;
+    use crate::geom::camera::Camera;
     use crate::render::raster::{Mesh, Projection};
 
     /// `uniform_band` draws the same bytes as `band` for bands without triangles, including

@@ -17,6 +17,15 @@ pub struct RgbaImage {
     pub data: Vec<u8>,
 }
 
+impl crate::formats::png_write::RgbaPixels for RgbaImage {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+    fn rgba(&self) -> &[u8] {
+        &self.data
+    }
+}
+
 impl RgbaImage {
     /// A `width × height` image filled with `rgba` (sRGB bytes). Allocates `4·w·h` bytes.
     pub fn new_filled(width: u32, height: u32, rgba: [u8; 4]) -> Self {

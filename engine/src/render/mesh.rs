@@ -41,16 +41,17 @@
 //! triangle and the mip pyramids when textured), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
 //! Shadow pass: O(bands × triangles) bounding-box tests plus the covered texels.
 
-use crate::geom::unit;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::camera::{cross, dot, normalize, sub, Camera};
 use super::image::RgbaImage;
 use super::raster::{render_adaptive, Fragment, Mesh as RMesh, Projection, Rasterizer, Sample};
 use crate::control::{Canceled, Control};
+use crate::geom::camera::Camera;
 use crate::geom::mesh::{Mesh, MeshPart, Texture, TextureWrap};
+use crate::geom::vec::{normalized, sun_direction, unit, DVec3};
+use crate::params::MeshView;
 use crate::render::image::{linear_to_srgb8, srgb8_to_linear};
 
 /// Per-triangle or per-vertex surface colour (albedo, linear RGB 0..1).
@@ -105,7 +106,7 @@ pub struct MeshInstance<'a> {
 #[derive(Debug, Clone, PartialEq)]
 pub struct MeshLighting {
     /// Direction *toward* the sun, world frame (normalised here). Default:
-    /// [`super::sun_direction`]`(135, 40)` (south-east, 40° up).
+    /// [`sun_direction`]`(135, 40)` (south-east, 40° up).
     pub sun_dir: [f64; 3],
     /// Sun irradiance, linear RGB. Default: `[0.9, 0.864, 0.81]`.
     pub sun_color: [f32; 3],
@@ -130,10 +131,28 @@ pub struct MeshLighting {
     pub background: Option<[f32; 4]>,
 }
 
+impl MeshLighting {
+    /// Sun, shadows and fog of a mesh pipeline's view for rendering `mesh`; `fog` is per scene
+    /// diagonal so the same value suits a table and a house.
+    pub fn for_view(view: &MeshView, mesh: &Mesh) -> Self {
+        let diag = mesh
+            .bounds()
+            .map(|(lo, hi)| (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt())
+            .unwrap_or(1.0)
+            .max(1e-3);
+        Self {
+            sun_dir: sun_direction(view.sun_azimuth_deg, view.sun_elevation_deg),
+            shadows: view.shadows,
+            fog_density: view.fog / diag,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for MeshLighting {
     fn default() -> Self {
         Self {
-            sun_dir: super::terrain::sun_direction(135.0, 40.0),
+            sun_dir: sun_direction(135.0, 40.0),
             sun_color: [0.9, 0.864, 0.81],
             ambient: 0.35,
             shadows: true,
@@ -459,9 +478,9 @@ fn triangle_area(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> f32 {
 /// An orthographic depth map along the sun: texel (i, j) holds the largest `dot(p, sun)` of the
 /// scene at its centre (−∞ = empty).
 struct ShadowMap {
-    u: [f64; 3],
-    v: [f64; 3],
-    d: [f64; 3],
+    u: DVec3,
+    v: DVec3,
+    d: DVec3,
     u0: f64,
     v0: f64,
     /// World units per texel.
@@ -475,14 +494,10 @@ struct ShadowMap {
 
 impl ShadowMap {
     fn build(s: &Scene, sun: [f64; 3], size: u32, ctl: &dyn Control) -> Result<Self, Canceled> {
-        let d = sun;
-        let helper = if d[1].abs() < 0.9 {
-            [0.0, 1.0, 0.0]
-        } else {
-            [1.0, 0.0, 0.0]
-        };
-        let u = normalize(cross(helper, d));
-        let v = cross(d, u);
+        let d = DVec3::from(sun);
+        let helper = if d.y.abs() < 0.9 { DVec3::Y } else { DVec3::X };
+        let u = normalized(helper.cross(d));
+        let v = d.cross(u);
         let size = size.clamp(16, 8192) as usize;
         let (mut u0, mut u1, mut v0, mut v1) = (
             f64::INFINITY,
@@ -493,18 +508,19 @@ impl ShadowMap {
         let mut d0 = f64::INFINITY;
         for p in &s.positions {
             if p.iter().all(|c| c.is_finite()) {
-                let (pu, pv) = (dot(*p, u), dot(*p, v));
+                let p = DVec3::from(*p);
+                let (pu, pv) = (p.dot(u), p.dot(v));
                 u0 = u0.min(pu);
                 u1 = u1.max(pu);
                 v0 = v0.min(pv);
                 v1 = v1.max(pv);
-                d0 = d0.min(dot(*p, d));
+                d0 = d0.min(p.dot(d));
             }
         }
         let extent = (u1 - u0).max(v1 - v0).max(1e-9);
         let texel = extent * 1.002 / size as f64;
         let (u0, v0) = (u0 - extent * 0.001, v0 - extent * 0.001);
-        let diag = dot(sub(s.hi, s.lo), sub(s.hi, s.lo)).sqrt();
+        let diag = DVec3::from(s.hi).distance(DVec3::from(s.lo));
         let mut map = Self {
             u,
             v,
@@ -519,10 +535,11 @@ impl ShadowMap {
         };
         // Map-space triangle corners (texel units, depth relative to d0).
         let to_map = |p: [f64; 3]| -> [f64; 3] {
+            let p = DVec3::from(p);
             [
-                (dot(p, u) - map.u0) / texel,
-                (dot(p, v) - map.v0) / texel,
-                dot(p, d) - map.d0,
+                (p.dot(u) - map.u0) / texel,
+                (p.dot(v) - map.v0) / texel,
+                p.dot(d) - map.d0,
             ]
         };
         let tris: Vec<[[f64; 3]; 3]> = s
@@ -547,11 +564,12 @@ impl ShadowMap {
 
     /// Fraction of the sun visible at `p` with normal `n` (unit, facing the sun: `ndl > 0`).
     fn visibility(&self, p: [f64; 3], ndl: f64) -> f32 {
-        let x = (dot(p, self.u) - self.u0) / self.texel - 0.5;
-        let y = (dot(p, self.v) - self.v0) / self.texel - 0.5;
+        let p = DVec3::from(p);
+        let x = (p.dot(self.u) - self.u0) / self.texel - 0.5;
+        let y = (p.dot(self.v) - self.v0) / self.texel - 0.5;
         let tan = ((1.0 - ndl * ndl).max(0.0).sqrt() / ndl.max(1e-6)).min(8.0);
         let bias = self.texel * (1.0 + 2.0 * tan) + self.eps;
-        let depth = dot(p, self.d) - self.d0 + bias;
+        let depth = p.dot(self.d) - self.d0 + bias;
         let (fx, fy) = (x.floor(), y.floor());
         let (ax, ay) = ((x - fx) as f32, (y - fy) as f32);
         let n = self.size as i64;
@@ -700,7 +718,7 @@ impl<'a> MeshRenderer<'a> {
     ) -> Result<Self, Canceled> {
         ctl.checkpoint()?;
         let scene = merge(instances);
-        let sun = normalize(light.sun_dir);
+        let sun = normalized(DVec3::from(light.sun_dir)).to_array();
         let sun_ok = sun.iter().all(|v| v.is_finite());
         let shadow = if light.shadows && sun_ok && !scene.triangles.is_empty() {
             Some(ShadowMap::build(&scene, sun, light.shadow_map_size, ctl)?)
@@ -747,11 +765,9 @@ impl<'a> MeshRenderer<'a> {
     /// or zero; flipped toward the eye) reflects: sun with shadows plus sky ambient, before fog.
     #[inline]
     pub fn irradiance(&self, p: [f64; 3], n: [f32; 3]) -> [f32; 3] {
-        let to_eye = sub(self.eye, p);
+        let to_eye = DVec3::from(self.eye) - DVec3::from(p);
         let mut n = n;
-        if f64::from(n[0]) * to_eye[0] + f64::from(n[1]) * to_eye[1] + f64::from(n[2]) * to_eye[2]
-            < 0.0
-        {
+        if DVec3::from(n.map(f64::from)).dot(to_eye) < 0.0 {
             n = n.map(|v| -v);
         }
         self.irradiance_one_sided(p, n)
@@ -781,11 +797,9 @@ impl<'a> MeshRenderer<'a> {
     /// face turned away from it.
     #[inline]
     fn snow_irradiance_at(&self, p: [f64; 3], n: [f32; 3]) -> [f32; 3] {
-        let to_eye = sub(self.eye, p);
+        let to_eye = DVec3::from(self.eye) - DVec3::from(p);
         let mut n = n;
-        if f64::from(n[0]) * to_eye[0] + f64::from(n[1]) * to_eye[1] + f64::from(n[2]) * to_eye[2]
-            < 0.0
-        {
+        if DVec3::from(n.map(f64::from)).dot(to_eye) < 0.0 {
             n = n.map(|v| -v);
         }
         let sun = self.sun;
@@ -807,8 +821,7 @@ impl<'a> MeshRenderer<'a> {
     #[inline]
     pub fn fog_factor(&self, p: [f64; 3]) -> f32 {
         if self.light.fog_density > 0.0 {
-            let to_eye = sub(self.eye, p);
-            let dist = dot(to_eye, to_eye).sqrt();
+            let dist = DVec3::from(self.eye).distance(DVec3::from(p));
             (-(f64::from(self.light.fog_density)) * dist).exp() as f32
         } else {
             1.0
@@ -890,9 +903,11 @@ impl<'a> MeshRenderer<'a> {
                 .and_then(|&k| scene.tex.maps.get(k as usize))
             {
                 // Mip level from the sample's footprint (module doc, *Materials*).
-                let to_eye = sub(self.eye, p);
-                let dist = dot(to_eye, to_eye).sqrt().max(1e-12);
-                let cos = (dot(n.map(f64::from), to_eye) / dist).abs().max(0.05);
+                let to_eye = DVec3::from(self.eye) - DVec3::from(p);
+                let dist = to_eye.length().max(1e-12);
+                let cos = (DVec3::from(n.map(f64::from)).dot(to_eye) / dist)
+                    .abs()
+                    .max(0.05);
                 let rho = f.z * self.pixel * f64::from(scene.tex.density[t]) / cos.sqrt();
                 let level = if rho > 1.0 { rho.log2() as f32 } else { 0.0 };
                 let c = map.sample(f.interpolate(scene.tex.uv[t]), level);

@@ -2,8 +2,6 @@
 //! sheets.
 //!
 //! - [`image`]: 8-bit sRGB images with straight alpha and the linear ↔ sRGB conversions.
-//! - [`camera`]: a perspective pin-hole camera (explicit eye/target or an orbit around a centre)
-//!   and per-pixel ray generation.
 //! - [`terrain`]: a ray caster over a maximum-height mip pyramid that draws big DEMs at full detail
 //!   with Lambert shading, cast shadows, aerial perspective (SPEC §1 step 8) and a sky background.
 //! - [`raster`]: a z-buffered, binned, parallel triangle rasteriser with perspective-correct
@@ -17,18 +15,17 @@
 //! right-handed; the grid is centred on the origin horizontally.
 
 pub mod adaptive;
-pub mod camera;
+pub(crate) mod camera;
 pub mod image;
 pub mod mesh;
 pub mod raster;
 pub mod sheet;
 pub mod terrain;
 
-pub use camera::{Camera, RayGen};
 pub use image::RgbaImage;
 pub use sheet::contact_sheet;
 
 pub use terrain::{
-    render_terrain, render_with, render_with_path, sun_direction, Hit, Lighting, RenderPath,
-    TerrainAccel, TerrainScene, RASTER_CELLS_PER_PIXEL,
+    render_terrain, render_with, render_with_path, Hit, Lighting, RenderPath, TerrainAccel,
+    TerrainScene, RASTER_CELLS_PER_PIXEL,
 };

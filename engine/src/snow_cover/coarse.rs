@@ -4,7 +4,7 @@
 //! Levelling by the angle of repose behaves like diffusion: a pile R cells wide needs ~R²
 //! iterations to spread (7,602 Jacobi iterations for a 1 m pile on a 1024² map). So before
 //! iterating on the fine map, [`Settler::stabilize`](super::settle::Settler::stabilize) restricts
-//! it to a map of 2 × 2 blocks, stabilizes that (recursively, down to [`COARSE_MIN_SIDE`]), and
+//! it to a map of 2 × 2 blocks, stabilizes that (recursively, down to [`COARSE_MIN_SIDE`](super::settle::COARSE_MIN_SIDE)), and
 //! prolongs the result back; the fine iterations then only smooth the block structure.
 //!
 //! **Restriction.** A block carries layer k when its four cells all have layer k, the links
@@ -32,29 +32,14 @@
 //! Cost: two passes over the fine cells and the coarse map's own stabilization. Allocates the
 //! coarse maps and their [`Settler`] once per fine [`Settler`].
 
-use super::maps::{Layer, SnowMaps, LINK_LOST, LINK_WALL, SNOW_UNIT_M};
-use super::settle::{SettleReport, Settler};
+use super::maps::{MapLayer, SnowMaps, LINK_LOST, LINK_WALL, SNOW_UNIT_M};
+use super::settle::{Coarse, SettleReport, Settler, COARSE_MIN_SIDE};
 use crate::{Canceled, Control};
-
-/// A map is stabilized coarse-to-fine when its shorter side has at least this many cells (the
-/// coarser levels then go on down to 64–127 cells). Smaller maps converge quickly on their own, and in an
-/// animation (small increments per step) the coarse pass costs more than it saves (measured on the
-/// 200² animation benchmark: 27 instead of 32 steps/s).
-pub const COARSE_MIN_SIDE: usize = 256;
 
 /// Safety margin (snow units, 0.1 mm) between a coarse block's ceiling and the least room any of
 /// its cells has: covers the `f32` rounding of the coarse base, so a prolonged change never lifts
 /// a fine cell past its own ceiling. Blocks with less room stay fine-only.
 const CEILING_MARGIN_UNITS: u32 = 100;
-
-/// The coarse level of a [`Settler`]: the restricted maps, their own settler, and the coarse snow
-/// before stabilization (per layer).
-#[derive(Debug, Clone)]
-pub(super) struct Coarse {
-    maps: SnowMaps,
-    settler: Settler,
-    before: Vec<Vec<u32>>,
-}
 
 /// The four cells of block (bi, bj): (2bi, 2bj), (2bi+1, 2bj), (2bi, 2bj+1), (2bi+1, 2bj+1).
 #[inline]
@@ -73,7 +58,7 @@ impl Coarse {
             nz,
             cell: fine.cell * 2.0,
             origin: fine.origin,
-            layers: (0..fine.layers.len()).map(|_| Layer::empty(n)).collect(),
+            layers: (0..fine.layers.len()).map(|_| MapLayer::empty(n)).collect(),
             extent: fine.extent,
         };
         let settler = Settler::new(&maps);

@@ -6,13 +6,13 @@
 //! order per cell* instead: layer 0 at a cell is the topmost snow-possible surface seen from above,
 //! layer 1 the next one below it, and so on (see [`super::region`] for the peeling). So one physical
 //! surface can be layer 0 in some cells and layer 1 in others (the floor outside and under a
-//! table); what ties it together is the per-cell-and-direction [`Layer::links`] table that says
+//! table); what ties it together is the per-cell-and-direction [`MapLayer::links`] table that says
 //! which layer of the neighbouring cell snow moves to (see [`super::region`] for the rule).
 //!
 //! **Grid.** `nx × nz` square cells of `cell` metres, row-major (`j * nx + i`), cell (i, j) centred
 //! at world `x = origin[0] + (i + ½)·cell`, `z = origin[1] + (j + ½)·cell`; Y is up.
 //!
-//! **Snow amounts are integers**: [`Layer::snow`] holds the depth of snow in units of
+//! **Snow amounts are integers**: [`MapLayer::snow`] holds the depth of snow in units of
 //! [`SNOW_UNIT_M`] (1 µm) as `u32` (up to 4.29 km). Moves between cells are integer transfers, so
 //! mass is conserved *exactly* (fallen = resting + lost, to the unit) and totals do not depend on
 //! the order of summation, hence not on the number of threads. Rejected: `f32` depths (the total
@@ -22,10 +22,10 @@
 /// One snow amount unit: 1 µm of snow depth (metres).
 pub const SNOW_UNIT_M: f64 = 1e-6;
 
-/// [`Layer::links`] value: the neighbour is a wall (only higher, unconnected surfaces there); no
+/// [`MapLayer::links`] value: the neighbour is a wall (only higher, unconnected surfaces there); no
 /// snow moves that way.
 pub const LINK_WALL: u8 = 254;
-/// [`Layer::links`] value: beyond the neighbour is the edge of the scene (off the map, or a column
+/// [`MapLayer::links`] value: beyond the neighbour is the edge of the scene (off the map, or a column
 /// with no geometry at all); snow moved that way leaves the scene and is counted as lost.
 pub const LINK_LOST: u8 = 255;
 
@@ -38,7 +38,7 @@ pub const fn opposite(d: usize) -> usize {
     d ^ 1
 }
 
-/// `⌊(ceiling − base) / unit⌋` in snow units, saturating (see [`Layer::capacity`]).
+/// `⌊(ceiling − base) / unit⌋` in snow units, saturating (see [`MapLayer::capacity`]).
 #[inline]
 pub fn capacity_units(base: f32, ceiling: f32) -> u32 {
     if base.is_nan() {
@@ -56,7 +56,7 @@ pub fn capacity_units(base: f32, ceiling: f32) -> u32 {
 
 /// One depth layer of the snow maps (see the module doc for the indexing).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Layer {
+pub struct MapLayer {
     /// Base height (world Y, metres) of the snow-possible surface at each cell centre; NaN where
     /// this layer has no surface at the cell.
     pub base: Vec<f32>,
@@ -64,7 +64,7 @@ pub struct Layer {
     pub normal: Vec<[f32; 3]>,
     /// Height of the underside of the next geometry above the surface (metres), `+∞` under open
     /// sky, NaN where `base` is NaN. Snow is clipped at it (our addition; the paper's hand-made
-    /// groups never overlap): a cell holds at most [`Layer::capacity`] units; accumulation does
+    /// groups never overlap): a cell holds at most [`MapLayer::capacity`] units; accumulation does
     /// not deposit beyond it, and stabilization treats snow that does not fit like snow on a wall:
     /// it moves on (see [`super::settle`]).
     pub ceiling: Vec<f32>,
@@ -78,7 +78,7 @@ pub struct Layer {
     pub links: Vec<[u8; 4]>,
 }
 
-impl Layer {
+impl MapLayer {
     /// An empty layer of `n` cells (no surface anywhere).
     pub fn empty(n: usize) -> Self {
         Self {
@@ -140,7 +140,7 @@ pub struct SnowMaps {
     /// World (x, z) of the corner of cell (0, 0), metres.
     pub origin: [f32; 2],
     /// Depth layers, topmost first; at least one.
-    pub layers: Vec<Layer>,
+    pub layers: Vec<MapLayer>,
     /// Length (metres) of the scene's bounding-box diagonal; scales depth epsilons and biases.
     pub extent: f32,
 }
@@ -187,7 +187,7 @@ impl SnowMaps {
 
     /// Snow resting on the maps, in units (all layers).
     pub fn total_units(&self) -> u64 {
-        self.layers.iter().map(Layer::total_units).sum()
+        self.layers.iter().map(MapLayer::total_units).sum()
     }
 
     /// Snow resting on each layer, m³.

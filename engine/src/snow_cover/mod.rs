@@ -14,7 +14,6 @@ pub mod probability;
 pub mod region;
 pub mod run;
 #[doc(hidden)]
-pub mod scenes;
 pub mod settle;
 pub mod shadow;
 pub mod shape;
@@ -22,7 +21,7 @@ pub mod simplify;
 pub mod snowfall;
 pub mod sparse;
 
-pub use maps::{Layer, SnowMaps, SNOW_UNIT_M};
+pub use maps::{MapLayer, SnowMaps, SNOW_UNIT_M};
 pub use probability::{snow_probability, snowfall_directions, Receiver, Wind};
 pub use region::build_snow_maps;
 pub use settle::{SettleReport, Settler};
@@ -38,5 +37,5 @@ pub fn stabilize(
     Settler::new(maps).stabilize(maps, repose_deg, max_iterations, ctl)
 }
 
-pub use params::Params;
+pub use params::SnowCoverParams;
 pub use run::run;

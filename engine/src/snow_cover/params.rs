@@ -5,10 +5,8 @@ use serde::{Deserialize, Serialize};
 
 use super::probability::Wind;
 use super::snowfall::{ModelParams, Snowfall, DEFAULT_RATE_M_PER_H};
-pub use crate::mesh_view::UpAxisParam;
-use crate::mesh_view::{MeshView, MeshViewDefaults, WireMeshView};
-use crate::params::{range, WireCamera};
-use crate::pipeline::Limits;
+use crate::geom::mesh::UpAxis;
+use crate::params::{range, Limits, MeshView, MeshViewDefaults, WireCamera, WireMeshView};
 use crate::ParamError;
 
 /// Wire form of `wind`.
@@ -35,7 +33,7 @@ pub struct WireParams {
     pub height: Option<u32>,
     pub camera: Option<WireCamera>,
     pub seed: Option<u64>,
-    pub up_axis: Option<UpAxisParam>,
+    pub up_axis: Option<UpAxis>,
     pub resolution: Option<usize>,
     pub directions: Option<usize>,
     pub spread_deg: Option<f32>,
@@ -59,7 +57,7 @@ pub struct WireParams {
 
 /// Validated parameters of one `snow-cover` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Params {
+pub struct SnowCoverParams {
     /// Output size, camera, up axis, sun, fog (default 0.6: the paper renders with fog) and
     /// shadows, shared with `dust`.
     #[serde(flatten)]
@@ -124,7 +122,7 @@ pub enum SnowfallParam {
     Schedule(Vec<[f64; 2]>),
 }
 
-/// Default `max_stabilize_iterations` of the pipeline (a cap; see [`Params`]).
+/// Default `max_stabilize_iterations` of the pipeline (a cap; see [`SnowCoverParams`]).
 pub const DEFAULT_MAX_STABILIZE_ITERATIONS: usize = 200;
 
 /// When `snowfall` is not given, the default total (rate × `duration_h`) is at most this share
@@ -149,11 +147,11 @@ pub fn default_rate(duration_h: f64, scene_height: f64) -> f64 {
     DEFAULT_RATE_M_PER_H.min(DEFAULT_MAX_SHARE_OF_HEIGHT * scene_height / duration_h)
 }
 
-impl Params {
+impl SnowCoverParams {
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
-        let w: WireParams = crate::pipeline::deserialize_params(v)?;
+        let w: WireParams = crate::params::deserialize_params(v)?;
         let view = MeshView::from_wire(
             WireMeshView {
                 width: w.width,
@@ -210,7 +208,7 @@ impl Params {
             Some(e) => Some(range("max_edge_length", Some(e), 1.0, 1e-4, 1e4)?),
             None => None,
         };
-        Ok(Params {
+        Ok(SnowCoverParams {
             view,
             seed: w.seed.unwrap_or(0),
             resolution: range("resolution", w.resolution, 512, 16, 4096)?,
@@ -280,7 +278,7 @@ mod tests {
 
     #[test]
     fn defaults_match_the_model_defaults() {
-        let p = Params::from_json(&json!({}), &Limits::default()).unwrap();
+        let p = SnowCoverParams::from_json(&json!({}), &Limits::default()).unwrap();
         let m = p.model(100.0);
         let d = ModelParams::default();
         assert_eq!(m.snowfall, d.snowfall, "a tall scene gets the model's rate");
@@ -318,10 +316,11 @@ mod tests {
             (json!({"frames": 0}), "frames"),
             (json!({"directionz": 3}), "directionz"),
         ] {
-            let e = Params::from_json(&v, &l).unwrap_err();
+            let e = SnowCoverParams::from_json(&v, &l).unwrap_err();
             assert_eq!(e.field, field, "{v}: {e}");
         }
-        let s = Params::from_json(&json!({"snowfall": [[0, 0.01], [6, 0.03]]}), &l).unwrap();
+        let s =
+            SnowCoverParams::from_json(&json!({"snowfall": [[0, 0.01], [6, 0.03]]}), &l).unwrap();
         assert_eq!(
             s.snowfall,
             Some(SnowfallParam::Schedule(vec![[0.0, 0.01], [6.0, 0.03]]))
@@ -331,7 +330,7 @@ mod tests {
     #[test]
     fn the_default_snowfall_is_capped_by_the_scene_height_and_a_given_one_is_not() {
         let l = Limits::default();
-        let p = Params::from_json(&json!({}), &l).unwrap();
+        let p = SnowCoverParams::from_json(&json!({}), &l).unwrap();
         let total = |m: ModelParams| m.snowfall.cumulative(m.duration_h);
         // A 20 m building: a real day's snow, 0.02 m/h × 12 h (the cap is 0.5 m).
         assert!((total(p.model(20.0)) - 0.24).abs() < 1e-12);
@@ -340,7 +339,7 @@ mod tests {
         // A 0.99-unit bunny: 2.5 % of its height.
         assert!((total(p.model(0.99)) - 0.02475).abs() < 1e-12);
         // The cap is on the total, whatever the duration.
-        let long = Params::from_json(&json!({"duration_h": 48}), &l).unwrap();
+        let long = SnowCoverParams::from_json(&json!({"duration_h": 48}), &l).unwrap();
         assert!((total(long.model(0.99)) - 0.02475).abs() < 1e-12);
         // Degenerate heights fall back to the plain default rather than no snow.
         assert_eq!(
@@ -348,7 +347,7 @@ mod tests {
             Snowfall::Constant(DEFAULT_RATE_M_PER_H)
         );
         // Given explicitly: never scaled.
-        let given = Params::from_json(&json!({"snowfall": 0.02}), &l).unwrap();
+        let given = SnowCoverParams::from_json(&json!({"snowfall": 0.02}), &l).unwrap();
         assert!((total(given.model(0.99)) - 0.24).abs() < 1e-12);
     }
 }

@@ -32,6 +32,7 @@ use rayon::prelude::*;
 use super::maps::SnowMaps;
 use super::shadow::{ShadowMap, MAX_BIAS_TAN};
 use crate::geom::mesh::Mesh;
+use crate::geom::vec::{unit_f64, DVec3};
 use crate::{Canceled, Control};
 
 /// Largest angle of a snowfall direction from vertical, degrees.
@@ -119,13 +120,10 @@ pub fn snowfall_directions(
     } else {
         [0.0, 0.0, 1.0]
     };
-    let am = a[0] * m[0] + a[1] * m[1] + a[2] * m[2];
-    let e1 = norm64([a[0] - am * m[0], a[1] - am * m[1], a[2] - am * m[2]]);
-    let e2 = [
-        m[1] * e1[2] - m[2] * e1[1],
-        m[2] * e1[0] - m[0] * e1[2],
-        m[0] * e1[1] - m[1] * e1[0],
-    ];
+    let (a, mv) = (DVec3::from(a), DVec3::from(m));
+    let e1 = unit_f64(a - mv * a.dot(mv));
+    let e2 = mv.cross(e1).to_array();
+    let e1 = e1.to_array();
     let sigma = f64::from(spread_deg.max(0.0)).to_radians();
     let mut rng = SplitMix64::new(seed);
     let max_tilt = f64::from(MAX_DIRECTION_TILT_DEG).to_radians();
@@ -151,14 +149,9 @@ pub fn snowfall_directions(
                 let (s, c) = (max_tilt.sin(), max_tilt.cos());
                 d = [d[0] / horiz * s, -c, d[2] / horiz * s];
             }
-            norm64(d).map(|v| v as f32)
+            unit_f64(DVec3::from(d)).as_vec3().to_array()
         })
         .collect()
-}
-
-fn norm64(a: [f64; 3]) -> [f64; 3] {
-    let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-    [a[0] / l, a[1] / l, a[2] / l]
 }
 
 /// Weights of `dirs` for the workshop's angle weighting: `exp(−θ²/2σ²)` with θ the angle to the
@@ -178,7 +171,7 @@ pub fn angle_weights(dirs: &[[f32; 3]], spread_deg: f32, wind: Option<Wind>) -> 
         .collect()
 }
 
-/// Compute [`Layer::probability`](super::maps::Layer::probability) of every layer cell from the
+/// Compute [`MapLayer::probability`](super::maps::MapLayer::probability) of every layer cell from the
 /// snowfall directions `dirs` (unit, pointing where snow goes), weighted by `weights` (same length,
 /// ≥ 0; `None` = equal). `receiver` picks base or snow surface. Checks for cancellation between
 /// directions; reports no progress (the caller knows the stage's share).

@@ -19,7 +19,7 @@
 //! indexed per cell from the top (see [`super::maps`]), so a table top and the floor under it are
 //! layers 0 and 1 there while the floor outside is layer 0.
 //!
-//! **Connectivity** ([`Layer::links`]). From layer k at cell c (base b) toward a 4-neighbour c',
+//! **Connectivity** ([`MapLayer::links`]). From layer k at cell c (base b) toward a 4-neighbour c',
 //! snow lands on the *highest layer of c' whose base is at most `b + step`*, with
 //! `step = cell · tan 75°` (surfaces up to 75° steep count as continuous): the floor continues
 //! from layer 0 outside a table to layer 1 under it, and snow leaving a table top lands on the
@@ -40,7 +40,7 @@
 
 use rayon::prelude::*;
 
-use super::maps::{Layer, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS};
+use super::maps::{MapLayer, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS};
 use crate::geom::mesh::Mesh;
 use crate::{Canceled, Control};
 
@@ -107,7 +107,7 @@ pub fn build_snow_maps(
             nz: 1,
             cell: 1.0,
             origin: [0.0, 0.0],
-            layers: vec![Layer::empty(1)],
+            layers: vec![MapLayer::empty(1)],
             extent: 1.0,
         });
     };
@@ -172,7 +172,7 @@ pub fn build_snow_maps(
         n_layers = n_layers.max(b.layers.iter().map(Vec::len).max().unwrap_or(0));
         outs.push(b);
     }
-    let mut layers: Vec<Layer> = (0..n_layers).map(|_| Layer::empty(n)).collect();
+    let mut layers: Vec<MapLayer> = (0..n_layers).map(|_| MapLayer::empty(n)).collect();
     let mut top = vec![f32::NAN; n];
     for (band, out) in outs.iter().enumerate() {
         let c0 = band * BAND_ROWS * nx;
@@ -339,7 +339,7 @@ fn peel_band(
     BandOut { layers, top }
 }
 
-/// Fill [`Layer::links`] of every layer (module doc). `top` = highest geometry per column.
+/// Fill [`MapLayer::links`] of every layer (module doc). `top` = highest geometry per column.
 fn compute_links(maps: &mut SnowMaps, top: &[f32]) {
     let (nx, nz) = (maps.nx, maps.nz);
     let step = maps.cell * STEP_SLOPE_DEG.to_radians().tan();

@@ -25,7 +25,7 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::params::Params;
+use super::params::SnowCoverParams;
 use super::probability::{angle_weights, main_direction, point_probability, snowfall_directions};
 use super::shape::{displace, SnowMesh, DEFAULT_MIN_DEPTH_M};
 use super::simplify::{simplified_snow_meshes, DEFAULT_MAX_ERROR_CELLS};
@@ -34,12 +34,13 @@ use super::sparse::{
     flake_overlay, flake_particles, flake_texture, snow_layer, vertex_coverage_with_probability,
     Flakes, FLAKE_TEXTURE_SIZE,
 };
+use crate::formats::mesh::decode_upright;
 use crate::formats::mesh_glb::{mesh_glb, scene_nodes, GlbGroup, GlbMaterial, GlbNode};
 use crate::formats::png_write::{encode_apng, encode_rgba};
 use crate::geom::Mesh;
-use crate::pipeline::Limits;
+use crate::params::Limits;
 use crate::render::image::RgbaImage;
-use crate::render::mesh::{render_meshes, MeshColors, MeshInstance};
+use crate::render::mesh::{render_meshes, MeshColors, MeshInstance, MeshLighting};
 use crate::{Canceled, Control, InputError, NoControl, Output};
 
 /// Snowfall directions (the first of the model's) behind the flakes' point probability.
@@ -66,14 +67,15 @@ fn amount(depth: f32, sparse_depth: f32) -> f32 {
     }
 }
 
-/// Decodes the scene (see [`crate::mesh_view::MeshView::decode`]).
+/// Decodes the scene with the files it refers to (see [`decode_upright`]).
 pub fn decode(
     bytes: &[u8],
     filename: Option<&str>,
-    p: &Params,
+    sidecars: &[(String, Vec<u8>)],
+    p: &SnowCoverParams,
     limits: &Limits,
 ) -> Result<Mesh, InputError> {
-    p.view.decode(bytes, filename, limits)
+    decode_upright(bytes, filename, sidecars, p.view.up_axis, limits)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -81,7 +83,7 @@ fn render_scene(
     mesh: &Mesh,
     snow: &[SnowMesh],
     flakes: Option<&Flakes>,
-    p: &Params,
+    p: &SnowCoverParams,
     width: u32,
     height: u32,
     ctl: &dyn Control,
@@ -110,7 +112,7 @@ fn render_scene(
     render_meshes(
         &instances,
         &p.view.camera_for(mesh, width, height),
-        &p.view.lighting(mesh),
+        &MeshLighting::for_view(&p.view, mesh),
         width,
         height,
         ctl,
@@ -139,7 +141,7 @@ fn snow_node(s: &SnowMesh) -> GlbNode<'_> {
 }
 
 /// Runs the pipeline on a decoded scene.
-pub fn run(mesh: &Mesh, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
     let scene_height = mesh
         .bounds()

@@ -2,7 +2,7 @@
 //! stabilization by the angle of repose, and falling.
 //!
 //! **Stabilization** (§2.4.1). A cell compares its snow surface (base + snow) with the surfaces its
-//! 4 neighbours link to ([`Layer::links`], see [`super::region`]). With `T = cell · tan(repose)`,
+//! 4 neighbours link to ([`MapLayer::links`], see [`super::region`]). With `T = cell · tan(repose)`,
 //! a neighbour is *lower* when the drop `d` toward it exceeds `T` by more than the tolerance
 //! [`SLOPE_TOLERANCE`]` · cell`; its excess is `e = d − T`. No lower neighbour: nothing moves
 //! (Fig. 6 (a)). Otherwise each of the n lower neighbours receives the same share `ē / (n + 1)`
@@ -22,7 +22,7 @@
 //! arrives by falling off its edge and spreading from the pile below).
 //!
 //! **Ceiling** (our addition: the paper's groups never overlap). A cell holds at most
-//! [`Layer::capacity`](super::maps::Layer::capacity) units, the snow that fits under the geometry
+//! [`MapLayer::capacity`](super::maps::MapLayer::capacity) units, the snow that fits under the geometry
 //! above it (the floor under a table). A neighbour already full to its ceiling takes nothing (a wall
 //! for now); shares are capped at the room a neighbour has left; the drop is measured from the snow
 //! *surface*, clipped at the ceiling; and snow above a cell's ceiling (none arises from accumulation
@@ -84,7 +84,6 @@
 
 use rayon::prelude::*;
 
-use super::coarse::{Coarse, COARSE_MIN_SIDE};
 use super::maps::{opposite, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS, SNOW_UNIT_M};
 use crate::{Canceled, Control};
 
@@ -95,6 +94,24 @@ pub const SLOPE_TOLERANCE: f32 = 0.01;
 /// a pile needs (measured: 472 → 228 on a 1 m pile at 256²) and keeps the repose and mass
 /// properties, but leaves ripples (a cone's profile is no longer monotone), so it is opt-in.
 pub const DEFAULT_RELAXATION: f32 = 1.0;
+/// A map is stabilized coarse-to-fine when its shorter side has at least this many cells (the
+/// coarser levels then go on down to 64–127 cells). Smaller maps converge quickly on their own, and in an
+/// animation (small increments per step) the coarse pass costs more than it saves (measured on the
+/// 200² animation benchmark: 27 instead of 32 steps/s).
+pub const COARSE_MIN_SIDE: usize = 256;
+
+/// The coarse level of a [`Settler`]: the restricted maps, their own settler, and the coarse snow
+/// before stabilization (per layer).
+#[derive(Debug, Clone)]
+///
+/// Defined here, beside the [`Settler`] that holds it; its methods (restriction, the coarse
+/// solve, prolongation) are in [`super::coarse`], which builds on this file and not the other way.
+pub(super) struct Coarse {
+    pub(super) maps: SnowMaps,
+    pub(super) settler: Settler,
+    pub(super) before: Vec<Vec<u32>>,
+}
+
 /// Default over-relaxation of the height-ordered sweeps of a [`Settler`]: 1, the paper's levelling
 /// (the model's time loop uses [`MODEL_SWEEP_RELAXATION`]).
 pub const DEFAULT_SWEEP_RELAXATION: f32 = 1.0;

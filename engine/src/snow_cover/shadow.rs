@@ -25,6 +25,12 @@
 use multiversion::multiversion;
 
 use crate::geom::mesh::Mesh;
+use crate::geom::vec::{unit, Vec3};
+
+#[inline]
+fn dot(a: [f32; 3], b: Vec3) -> f32 {
+    Vec3::from(a).dot(b)
+}
 
 /// Largest shadow-map side, texels.
 pub const MAX_SHADOW_DIM: usize = 4096;
@@ -51,34 +57,14 @@ pub struct ShadowMap {
     proj: Vec<[f32; 3]>,
 }
 
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline]
-fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = dot(a, a).sqrt();
-    [a[0] / l, a[1] / l, a[2] / l]
-}
-
 impl ShadowMap {
     /// Render `mesh` along snowfall direction `dir` (unit vector pointing where the snow goes,
     /// downward) with texels of `texel` metres, over `bounds` (the mesh's bounding box).
     pub fn render(&mut self, mesh: &Mesh, dir: [f32; 3], bounds: ([f32; 3], [f32; 3]), texel: f32) {
-        let w = normalize([-dir[0], -dir[1], -dir[2]]);
-        let a = if w[0].abs() < 0.9 {
-            [1.0, 0.0, 0.0]
-        } else {
-            [0.0, 0.0, 1.0]
-        };
-        let aw = dot(a, w);
-        let u = normalize([a[0] - aw * w[0], a[1] - aw * w[1], a[2] - aw * w[2]]);
-        let t = [
-            w[1] * u[2] - w[2] * u[1],
-            w[2] * u[0] - w[0] * u[2],
-            w[0] * u[1] - w[1] * u[0],
-        ];
+        let w = Vec3::from(unit([-dir[0], -dir[1], -dir[2]]));
+        let a = if w.x.abs() < 0.9 { Vec3::X } else { Vec3::Z };
+        let u = Vec3::from(unit((a - w * a.dot(w)).to_array()));
+        let t = w.cross(u);
         let (lo, hi) = bounds;
         let (mut umin, mut umax, mut tmin, mut tmax) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
         for k in 0..8 {
@@ -98,9 +84,9 @@ impl ShadowMap {
         if span / texel + 3.0 > MAX_SHADOW_DIM as f32 {
             texel = span / (MAX_SHADOW_DIM as f32 - 3.0);
         }
-        self.u = u;
-        self.t = t;
-        self.w = w;
+        self.u = u.to_array();
+        self.t = t.to_array();
+        self.w = w.to_array();
         self.texel = texel;
         self.u0 = umin - texel;
         self.t0 = tmin - texel;
@@ -113,8 +99,7 @@ impl ShadowMap {
         // Project every vertex to grid coordinates (texel centres at integers).
         let inv = 1.0 / texel;
         let (gu0, gt0) = (self.u0 * inv + 0.5, self.t0 * inv + 0.5);
-        let su = [u[0] * inv, u[1] * inv, u[2] * inv];
-        let st = [t[0] * inv, t[1] * inv, t[2] * inv];
+        let (su, st) = (u * inv, t * inv);
         self.proj.clear();
         self.proj.extend(
             mesh.positions
@@ -134,7 +119,7 @@ impl ShadowMap {
     /// scene's diagonal.
     #[inline]
     pub fn bias(&self, n: [f32; 3], extent: f32) -> f32 {
-        let c = dot(n, self.w).abs().max(1e-3);
+        let c = dot(n, self.w.into()).abs().max(1e-3);
         let tan = ((1.0 - c * c).max(0.0).sqrt() / c).min(MAX_BIAS_TAN);
         self.texel * (0.71 * tan + 0.1) + 1e-5 * extent
     }
@@ -144,8 +129,8 @@ impl ShadowMap {
     #[inline]
     pub fn occluded(&self, p: [f32; 3], bias: f32) -> bool {
         let inv = 1.0 / self.texel;
-        let gx = (dot(p, self.u) - self.u0) * inv - 0.5;
-        let gy = (dot(p, self.t) - self.t0) * inv - 0.5;
+        let gx = (dot(p, self.u.into()) - self.u0) * inv - 0.5;
+        let gy = (dot(p, self.t.into()) - self.t0) * inv - 0.5;
         // Nearest texel; anything left of −0.5 is off the map (truncation would fold it onto 0).
         if gx < -0.5 || gy < -0.5 {
             return false;
@@ -154,7 +139,7 @@ impl ShadowMap {
         if x >= self.width as f32 || y >= self.height as f32 {
             return false;
         }
-        self.depth[y as usize * self.width + x as usize] > dot(p, self.w) + bias
+        self.depth[y as usize * self.width + x as usize] > dot(p, self.w.into()) + bias
     }
 }
 

@@ -5,7 +5,7 @@
 //! **Snow meshes** ([`snow_meshes`]). The paper turns every snow map into polygons and renders them
 //! with the scene. We build one **closed** mesh per *connected snow region*: the graph whose nodes
 //! are the map cells `(cell, layer)` with more than `min_depth_m` of snow, and whose edges join
-//! 4-neighbours that link to each other *both ways* ([`super::maps::Layer::links`]: snow from A
+//! 4-neighbours that link to each other *both ways* ([`super::maps::MapLayer::links`]: snow from A
 //! moves onto B and from B onto A). So the floor outside a table and the floor under it are one
 //! region (they link both ways across the table's edge), while the table top is another: snow
 //! leaving the top falls onto the floor, but snow on the floor cannot climb onto the top. A region
@@ -25,7 +25,7 @@
 //!
 //! Snow thinner than `min_depth_m` (default [`DEFAULT_MIN_DEPTH_M`], 1 mm) is left out: that is the
 //! sparse-snow regime ([`super::sparse`]). The top is clipped at the ceiling
-//! ([`super::maps::Layer::surface`]): the model keeps snow under it already
+//! ([`super::maps::MapLayer::surface`]): the model keeps snow under it already
 //! ([`super::settle`], "Ceiling"), and the clip holds for maps a caller filled by hand.
 //!
 //! **Displaced mesh** ([`displace`]): workshop §2.3 (polygon variant): the input mesh, optionally
@@ -49,6 +49,8 @@ use std::collections::HashMap;
 use super::maps::{opposite, SnowMaps, NEIGHBOURS};
 use super::region::{DEPTH_EPS_REL, STEP_SLOPE_DEG, UP_FACING_MIN_NY};
 use crate::geom::mesh::{Mesh, MeshPart};
+use crate::geom::subdivide::subdivide_with;
+use crate::geom::vec::{DVec3, Vec3};
 
 /// Snow thinner than this (metres) gets no snow mesh (it is sparse snow). 1 mm.
 pub const DEFAULT_MIN_DEPTH_M: f32 = 1e-3;
@@ -57,9 +59,6 @@ pub const DEFAULT_MIN_DEPTH_M: f32 = 1e-3;
 /// output attributes, about the largest `displaced.glb` a viewer handles. Subdivision stops before
 /// a pass would exceed it (edges may then stay longer than asked).
 pub const MAX_DISPLACED_TRIANGLES: usize = 4_000_000;
-
-/// Most subdivision passes (each halves the long edges; 32 passes cut any edge by 2³²).
-const MAX_SUBDIVISION_PASSES: usize = 32;
 
 /// A closed snow mesh (world metres, Y up, CCW seen from outside).
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -96,37 +95,12 @@ pub struct DisplacedMesh {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Small vector helpers
-
-#[inline]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+// Normals and volume
 
 /// Twice the area-weighted normal of a triangle (its edge cross product), f64 for accuracy.
 fn face_cross(p: &[[f32; 3]], t: [u32; 3]) -> [f64; 3] {
-    let [a, b, c] = t.map(|i| p[i as usize].map(f64::from));
-    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-    [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
+    let [a, b, c] = t.map(|i| DVec3::from(p[i as usize].map(f64::from)));
+    (b - a).cross(c - a).to_array()
 }
 
 /// Smooth per-vertex unit normals: the area-weighted sum of the incident faces' normals,
@@ -160,13 +134,8 @@ pub fn signed_volume(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> f64 {
     triangles
         .iter()
         .map(|t| {
-            let [a, b, c] = t.map(|i| positions[i as usize].map(f64::from));
-            let bc = [
-                b[1] * c[2] - b[2] * c[1],
-                b[2] * c[0] - b[0] * c[2],
-                b[0] * c[1] - b[1] * c[0],
-            ];
-            (a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2]) / 6.0
+            let [a, b, c] = t.map(|i| DVec3::from(positions[i as usize].map(f64::from)));
+            a.dot(b.cross(c)) / 6.0
         })
         .sum()
 }
@@ -351,11 +320,9 @@ pub(super) fn regions(maps: &SnowMaps, min_depth_m: f32) -> Option<Regions> {
 /// bottom)` vertex), facing `out_dir` (the edge's outward direction).
 pub(super) fn push_skirt(m: &mut SnowMesh, p: (u32, u32), q: (u32, u32), out_dir: [f32; 3]) {
     // (bottom p, top p, top q): flip if its normal does not point outward.
-    let n = cross(
-        sub(m.positions[p.0 as usize], m.positions[p.1 as usize]),
-        sub(m.positions[q.0 as usize], m.positions[p.1 as usize]),
-    );
-    if dot(n, out_dir) > 0.0 {
+    let at = |i: u32| Vec3::from(m.positions[i as usize]);
+    let n = (at(p.0) - at(p.1)).cross(at(q.0) - at(p.1));
+    if n.dot(Vec3::from(out_dir)) > 0.0 {
         m.triangles.push([p.1, p.0, q.0]);
         m.triangles.push([p.1, q.0, q.1]);
     } else {
@@ -475,107 +442,6 @@ pub fn layer_at(maps: &SnowMaps, p: [f32; 3]) -> Option<(usize, usize)> {
 /// epsilon plus 10 µm of float slack.
 fn on_surface_eps(maps: &SnowMaps) -> f32 {
     maps.extent * DEPTH_EPS_REL + 1e-5
-}
-
-/// Subdivide in place by edge midpoints until no edge is longer than `max_len` metres, in passes:
-/// each pass splits every too-long edge once (a triangle with 1, 2 or 3 split edges becomes 2, 3
-/// or 4; with 2, the remaining quad is cut along its shorter diagonal), shared edges get one
-/// midpoint, so the surface stays crack-free and keeps its winding. Stops before a pass would make
-/// more than `max_triangles` triangles, or after 32 passes; edges may then stay longer than
-/// `max_len`. Deterministic: midpoints are keyed by their sorted vertex pair and created in
-/// triangle order. Allocates one map of midpoints per pass.
-pub fn subdivide(
-    positions: &mut Vec<[f32; 3]>,
-    triangles: &mut Vec<[u32; 3]>,
-    max_len: f32,
-    max_triangles: usize,
-) {
-    subdivide_with(positions, triangles, max_len, max_triangles, |_, _| {});
-}
-
-/// [`subdivide`], calling `on_mid(a, b)` right after the midpoint of edge (a, b) is appended to
-/// `positions`, so callers can append the vertex's other attributes (normal, UV) in step.
-pub fn subdivide_with(
-    positions: &mut Vec<[f32; 3]>,
-    triangles: &mut Vec<[u32; 3]>,
-    max_len: f32,
-    max_triangles: usize,
-    mut on_mid: impl FnMut(u32, u32),
-) {
-    let too_long = |p: &[[f32; 3]], a: u32, b: u32| {
-        let d = sub(p[a as usize], p[b as usize]);
-        dot(d, d) > max_len * max_len
-    };
-    for _ in 0..MAX_SUBDIVISION_PASSES {
-        let splits: usize = triangles
-            .iter()
-            .map(|t| {
-                (0..3)
-                    .filter(|&e| too_long(positions, t[e], t[(e + 1) % 3]))
-                    .count()
-            })
-            .sum();
-        if splits == 0 || triangles.len() + splits > max_triangles {
-            return;
-        }
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut next = Vec::with_capacity(triangles.len() + splits);
-        for &t in triangles.iter() {
-            let mut m = [u32::MAX; 3]; // midpoint of edge e = (t[e], t[e+1])
-            for e in 0..3 {
-                let (a, b) = (t[e], t[(e + 1) % 3]);
-                if too_long(positions, a, b) {
-                    let key = (a.min(b), a.max(b));
-                    m[e] = *mid.entry(key).or_insert_with(|| {
-                        let (pa, pb) = (positions[a as usize], positions[b as usize]);
-                        positions.push([
-                            0.5 * (pa[0] + pb[0]),
-                            0.5 * (pa[1] + pb[1]),
-                            0.5 * (pa[2] + pb[2]),
-                        ]);
-                        on_mid(a, b);
-                        positions.len() as u32 - 1
-                    });
-                }
-            }
-            let split: Vec<usize> = (0..3).filter(|&e| m[e] != u32::MAX).collect();
-            match split.len() {
-                0 => next.push(t),
-                1 => {
-                    // Edge e split: (a, m, c), (m, b, c).
-                    let e = split[0];
-                    let (a, b, c) = (t[e], t[(e + 1) % 3], t[(e + 2) % 3]);
-                    next.push([a, m[e], c]);
-                    next.push([m[e], b, c]);
-                }
-                2 => {
-                    // The unsplit edge u = (a, b); c opposite. Midpoints mb on (b, c), mc on (c, a).
-                    let u = (0..3).find(|&e| m[e] == u32::MAX).unwrap_or(0);
-                    let (a, b, c) = (t[u], t[(u + 1) % 3], t[(u + 2) % 3]);
-                    let (mb, mc) = (m[(u + 1) % 3], m[(u + 2) % 3]);
-                    next.push([mc, mb, c]);
-                    // Quad (a, b, mb, mc): cut along its shorter diagonal (ties: a–mb).
-                    let d1 = sub(positions[a as usize], positions[mb as usize]);
-                    let d2 = sub(positions[b as usize], positions[mc as usize]);
-                    if dot(d1, d1) <= dot(d2, d2) {
-                        next.push([a, b, mb]);
-                        next.push([a, mb, mc]);
-                    } else {
-                        next.push([a, b, mc]);
-                        next.push([b, mb, mc]);
-                    }
-                }
-                _ => {
-                    let (a, b, c) = (t[0], t[1], t[2]);
-                    next.push([a, m[0], m[2]]);
-                    next.push([m[0], b, m[1]]);
-                    next.push([m[2], m[1], c]);
-                    next.push([m[0], m[1], m[2]]);
-                }
-            }
-        }
-        *triangles = next;
-    }
 }
 
 /// The polygon variant for `displaced.glb` (module doc): subdivide `mesh` so that no edge exceeds

@@ -138,7 +138,7 @@ pub struct ModelReport {
 
 /// Deposit `P · (after_m − before_m)` on every cell (module doc for the rounding), `before_m` and
 /// `after_m` being cumulative snowfall on open ground (metres), but no more than fits under the
-/// cell's ceiling ([`super::maps::Layer::capacity`]; what does not fit is not deposited, as snow
+/// cell's ceiling ([`super::maps::MapLayer::capacity`]; what does not fit is not deposited, as snow
 /// on a wall is not, so it is not counted as fallen either). Returns the units deposited.
 pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u64 {
     let (a, b) = (before_m / SNOW_UNIT_M, after_m / SNOW_UNIT_M);

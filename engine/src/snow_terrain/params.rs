@@ -5,10 +5,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::descriptor::DescriptorParams;
+use crate::params::Limits;
 use crate::params::{
     camera_spec, image_size, parse_hex_color, range, CameraSpec, OrbitDefaults, WireCamera,
 };
-use crate::pipeline::Limits;
 use crate::ParamError;
 
 /// A parameter sweep: the same DEM rendered once per value of one parameter, laid out as a
@@ -261,7 +261,7 @@ impl Params {
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
     /// the field.
     pub fn from_json(v: &serde_json::Value, limits: &Limits) -> Result<Self, ParamError> {
-        let wire: WireParams = crate::pipeline::deserialize_params(v)?;
+        let wire: WireParams = crate::params::deserialize_params(v)?;
         let mut p = Self::from_wire(&wire, limits)?;
         if let Some(sweep) = &wire.sweep {
             if !SWEEPABLE.contains(&sweep.param.as_str()) {
@@ -284,7 +284,7 @@ impl Params {
                     m.remove("sweep");
                     m.insert(sweep.param.clone(), serde_json::json!(value));
                 }
-                let w: WireParams = crate::pipeline::deserialize_params(&obj)
+                let w: WireParams = crate::params::deserialize_params(&obj)
                     .map_err(|e| ParamError::new(format!("sweep.values[{i}]"), e.detail))?;
                 runs.push(
                     Self::from_wire(&w, limits).map_err(|e| {

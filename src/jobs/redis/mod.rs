@@ -52,7 +52,7 @@ use super::{
     Live, Load, Snapshot, StartError, Status, SubmitError, Submitted,
 };
 use crate::metrics::Metrics;
-use crate::pipelines::PipelineSet;
+use crate::pipeline_set::PipelineSet;
 use crate::store::Store;
 
 /// Settings of the Redis backend.

@@ -21,22 +21,23 @@
 //! lie inside that image.
 
 pub mod ambient;
+pub mod job;
 pub mod sun_color;
 pub mod sun_direction;
 
 use serde::Deserialize;
 
-use super::layers::{identity, Layers, LAYERS_FILE};
+use super::layers::{identity, layers_bin, Layers};
 use super::light::SunLight;
 use super::multiple::Scattering;
 use super::params::View;
 use super::run::{render, render_png, state_json};
 use super::state::{AmbientField, CloudState};
 use crate::geom::Volume;
-use crate::params::{parse_hex_color, WireCamera};
-use crate::pipeline::Limits;
+use crate::params::Limits;
+use crate::params::{Color, WireCamera};
 use crate::render::image::srgb_to_linear;
-use crate::{Canceled, Control, Output, ParamError};
+use crate::{Canceled, Control, Output, ParamError, Refusal};
 
 /// Most painted pixels one edit may carry: a full-HD stroke set is far below this, and marching
 /// 100,000 rays stays well under a second.
@@ -144,11 +145,11 @@ impl EditError {
     /// The problem type (the last part of its URI) and title of a refused edit, when the
     /// refusal has one of its own (the two stroke cases); None for the rest, which are plain
     /// `unprocessable`.
-    pub fn problem(&self) -> Option<(&'static str, &'static str)> {
+    pub fn refusal(&self) -> Refusal {
         match self {
-            EditError::MissesCloud => Some(("stroke-misses-cloud", "The stroke misses the cloud")),
-            EditError::NotLit => Some(("stroke-not-lit", "Nothing under the stroke is sunlit")),
-            _ => None,
+            EditError::MissesCloud => Refusal::StrokeMissesCloud,
+            EditError::NotLit => Refusal::StrokeNotLit,
+            _ => Refusal::Unprocessable,
         }
     }
 }
@@ -239,7 +240,9 @@ fn strokes(w: Vec<WireStroke>, view: &View) -> Result<Vec<Stroke>, ParamError> {
     for (i, s) in w.into_iter().enumerate() {
         let field = format!("strokes[{i}].color");
         let srgb: [f32; 3] = match &s.color {
-            WireColor::Hex(h) => parse_hex_color(&field, h)?.map(|b| f32::from(b) / 255.0),
+            WireColor::Hex(h) => Color::parse(&field, h)?
+                .srgb8()
+                .map(|b| f32::from(b) / 255.0),
             WireColor::Rgb(c) => {
                 let mut o = [0f32; 3];
                 for (k, v) in c.iter().enumerate() {
@@ -269,7 +272,7 @@ impl Edit {
     ) -> Result<Self, ParamError> {
         match kind {
             "sun-color" | "ambient" => {
-                let w: WirePaint = crate::pipeline::deserialize_params(v)?;
+                let w: WirePaint = crate::params::deserialize_params(v)?;
                 let view = View::from_wire(w.width, w.height, w.camera, limits)?;
                 let strokes = strokes(w.strokes, &view)?;
                 if kind == "sun-color" {
@@ -313,7 +316,7 @@ impl Edit {
                 }
             }
             "sun-direction" => {
-                let w: WireDrag = crate::pipeline::deserialize_params(v)?;
+                let w: WireDrag = crate::params::deserialize_params(v)?;
                 let view = View::from_wire(w.width, w.height, w.camera, limits)?;
                 pixel_inside("from", w.from, &view)?;
                 pixel_inside("to", w.to, &view)?;
@@ -324,7 +327,7 @@ impl Edit {
                 }))
             }
             "set" => {
-                let w: WireSet = crate::pipeline::deserialize_params(v)?;
+                let w: WireSet = crate::params::deserialize_params(v)?;
                 let view = View::from_wire(w.width, w.height, w.camera, limits)?;
                 let kappa = match w.kappa {
                     Some(k) => Some(crate::params::range("kappa", Some(k), k, 0.0, 10_000.0)?),
@@ -347,7 +350,8 @@ impl Edit {
                 let sun_color = match w.sun_color {
                     None => None,
                     Some(WireColor::Hex(h)) => Some(
-                        parse_hex_color("sun_color", &h)?
+                        Color::parse("sun_color", &h)?
+                            .srgb8()
                             .map(|b| f64::from(srgb_to_linear(f32::from(b) / 255.0))),
                     ),
                     Some(WireColor::Rgb(c)) => {
@@ -546,9 +550,4 @@ pub fn recolor(
         render_png(layers, &state),
         layers_bin(blob.to_vec()),
     ])
-}
-
-/// The `layers.bin` output.
-pub(crate) fn layers_bin(bytes: Vec<u8>) -> Output {
-    Output::new(LAYERS_FILE, "application/octet-stream", bytes)
 }

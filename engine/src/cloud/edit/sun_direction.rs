@@ -15,11 +15,9 @@ use rayon::prelude::*;
 
 use super::{EditError, SunDirectionEdit};
 use crate::cloud::grid::GridFrame;
+pub use crate::cloud::grid::DENSITY_THRESHOLD;
 use crate::cloud::state::CloudState;
 use crate::geom::Volume;
-
-/// Fraction of the maximum density that counts as cloud for P, Q and R.
-pub const DENSITY_THRESHOLD: f32 = 0.01;
 
 /// The voxels the drag found and the new direction toward the sun.
 #[derive(Debug, Clone, Copy, PartialEq)]

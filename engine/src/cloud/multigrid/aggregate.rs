@@ -25,8 +25,8 @@
 
 use rayon::prelude::*;
 
-use super::fine::Rgb;
 use super::graph::Adjacency;
+use super::graph::Rgb;
 
 const NONE: u32 = u32::MAX;
 /// The damping of the prolongation smoother.

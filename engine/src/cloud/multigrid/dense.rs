@@ -4,8 +4,8 @@
 //! is dropped, which solves that part with a zero correction — the residual there is zero
 //! anyway, as no pin's contribution reaches it.
 
-use super::fine::Rgb;
 use super::graph::Adjacency;
+use super::graph::Rgb;
 
 /// The Cholesky factor `L` (lower, row-major) of the coarsest operator.
 pub(super) struct Dense {

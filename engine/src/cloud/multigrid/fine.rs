@@ -24,8 +24,6 @@ use rayon::prelude::*;
 
 use super::graph::Graph;
 
-pub(super) type Rgb = [f32; 3];
-
 /// Not an unknown.
 pub(super) const NONE: u32 = u32::MAX;
 

@@ -8,7 +8,8 @@
 
 use rayon::prelude::*;
 
-use super::fine::Rgb;
+/// A linear RGB value per point (ambient excess, unknowns).
+pub(super) type Rgb = [f32; 3];
 
 /// What the setup (aggregation, prolongation, Galerkin product, coarsest factorisation) needs
 /// of a level's operator.

@@ -1,7 +1,8 @@
 //! Unit checks of the hierarchy's pieces against their definitions.
 
 use super::aggregate::Prolongation;
-use super::fine::{fine_level, Rgb};
+use super::fine::fine_level;
+use super::graph::Rgb;
 use super::graph::{Adjacency, Graph};
 use super::*;
 

@@ -45,18 +45,14 @@ mod obj;
 mod ply;
 mod stl;
 pub mod texture;
+mod upright;
+
+pub use upright::{decode_upright, other_up_reason, support_share};
 
 use crate::error::InputError;
 use crate::geom::mesh::{Mesh, MeshPart, Texture};
 
-/// Which file axis points up, for formats without a fixed convention (OBJ, STL, PLY).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum UpAxis {
-    /// +Y is up (glTF, most OBJ exporters): no change.
-    Y,
-    /// +Z is up (CAD, 3-D printing, scanners): rotated by (x, y, z) → (x, z, −y).
-    Z,
-}
+pub use crate::geom::mesh::UpAxis;
 
 /// Options for [`decode_mesh`].
 #[derive(Debug, Clone)]

@@ -1,0 +1,5 @@
+//! Dust (SPEC §4): the model, the input's materials, the pipeline's outputs.
+
+mod materials;
+pub mod model;
+mod pipeline;

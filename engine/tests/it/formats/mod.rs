@@ -1,0 +1,5 @@
+//! The readers and writers: DEMs, meshes, volumes.
+
+mod dem;
+mod mesh;
+mod volume;
