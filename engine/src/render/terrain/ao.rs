@@ -163,18 +163,19 @@ pub fn sky_view_factor(
     // a plain loop over slices that the compiler vectorises. Each point's arithmetic (and its
     // order of accumulation over the directions) is the per-point loop's: the same bytes out. A
     // direction's march ends at its first sample off the grid, and the points for which a step
-    // stays on the grid are a range that only shrinks as the step grows. Scratch: four `f64`
+    // stays on the grid are a range that only shrinks as the step grows. Scratch: five `f64`
     // rows per rayon task (`try_for_each_init`), nothing per row.
     data.par_chunks_mut(w.max(1))
         .enumerate()
         .try_for_each_init(
-            || vec![0.0f64; 4 * w],
+            || vec![0.0f64; 5 * w],
             |scratch, (j, row)| {
                 if j % 16 == 0 {
                     ctl.checkpoint()?;
                 }
                 let (gx, rest) = scratch.split_at_mut(w);
                 let (gz, rest) = rest.split_at_mut(w);
+                let (tan, rest) = rest.split_at_mut(w);
                 let (best, sum_sin) = rest.split_at_mut(w);
                 let h_row = &hs[j * w..(j + 1) * w];
                 // Central-difference gradient (one-sided at borders and next to nodata).
@@ -206,8 +207,13 @@ pub fn sky_view_factor(
                 let sin = |t: f64| t / (1.0 + t * t).sqrt();
                 for &(di, dj, len, steps) in &dirs {
                     // tan τ of the tangent plane along this azimuth.
-                    for i in 0..w {
-                        best[i] = (gx[i] * di as f64 * cdx + gz[i] * dj as f64 * cdy) / len;
+                    for ((t, b), (&gx, &gz)) in tan
+                        .iter_mut()
+                        .zip(best.iter_mut())
+                        .zip(gx.iter().zip(gz.iter()))
+                    {
+                        *t = (gx * di as f64 * cdx + gz * dj as f64 * cdy) / len;
+                        *b = *t;
                     }
                     for &k in &STEPS[..steps] {
                         let cj = j as isize + dj * k as isize;
@@ -235,9 +241,8 @@ pub fn sky_view_factor(
                             }
                         }
                     }
-                    for i in 0..w {
-                        let tan_t = (gx[i] * di as f64 * cdx + gz[i] * dj as f64 * cdy) / len;
-                        sum_sin[i] += sin(best[i]) - sin(tan_t);
+                    for ((acc, &b), &t) in sum_sin.iter_mut().zip(best.iter()).zip(tan.iter()) {
+                        *acc += sin(b) - sin(t);
                     }
                 }
                 for ((out, &h0), &s) in row.iter_mut().zip(h_row).zip(sum_sin.iter()) {
