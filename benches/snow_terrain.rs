@@ -19,13 +19,13 @@ use phenomena_engine::formats::png_write::encode_rgba;
 use phenomena_engine::geom::Dem;
 use phenomena_engine::params::Limits;
 use phenomena_engine::snow_terrain::altitude::apply_altitude;
-use phenomena_engine::snow_terrain::colour::albedo;
+use phenomena_engine::snow_terrain::color::albedo;
 use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
 use phenomena_engine::snow_terrain::smooth::smooth_diamond;
 use phenomena_engine::snow_terrain::sun::{apply_sun, Sun};
 use phenomena_engine::snow_terrain::transfer::transfer_grid;
 use phenomena_engine::snow_terrain::tsa::{tangent_sphere_accessibility, TsaGrid};
-use phenomena_engine::snow_terrain::{overview_render, run, Params};
+use phenomena_engine::snow_terrain::{overview_render, run, SnowTerrainParams};
 use phenomena_engine::NoControl;
 
 fn tanzawa() -> Dem {
@@ -62,14 +62,14 @@ pub fn mirrored(src: &Dem, w: usize, h: usize) -> Dem {
     }
 }
 
-fn params(width: u32, height: u32) -> Params {
+fn params(width: u32, height: u32) -> SnowTerrainParams {
     let v = serde_json::json!({ "width": width, "height": height });
-    Params::from_json(&v, &Limits::default()).expect("valid params")
+    SnowTerrainParams::from_json(&v, &Limits::default()).expect("valid params")
 }
 
 /// The render of `run` with default parameters (camera and lighting as `run` builds them).
-fn render(dem: &Dem, colour: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::render::RgbaImage {
-    overview_render(dem, colour, w, h).expect("not canceled")
+fn render(dem: &Dem, color: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::render::RgbaImage {
+    overview_render(dem, color, w, h).expect("not canceled")
 }
 
 fn stages(c: &mut Criterion) {
@@ -96,7 +96,7 @@ fn stages(c: &mut Criterion) {
     });
     // The same with `outputs: ["render.png"]` (descriptor, colour, render, PNG): the issue's
     // ≤ 30 ms figure.
-    let pp_img = Params::from_json(
+    let pp_img = SnowTerrainParams::from_json(
         &serde_json::json!({"width": 900, "height": 600, "outputs": ["render.png"]}),
         &Limits::default(),
     )
@@ -147,14 +147,14 @@ fn stages(c: &mut Criterion) {
             t
         })
     });
-    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+    let color = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
     g.bench_function(format!("colour_{n}"), |b| {
         b.iter(|| albedo(&d.t, [110, 102, 92], [244, 247, 251]))
     });
     g.bench_function(format!("render_1080p_{n}"), |b| {
-        b.iter(|| render(&dem, &colour, 1920, 1080))
+        b.iter(|| render(&dem, &color, 1920, 1080))
     });
-    let image = render(&dem, &colour, 1920, 1080);
+    let image = render(&dem, &color, 1920, 1080);
     g.bench_function("encode_png_1080p", |b| b.iter(|| encode_rgba(&image)));
     // The other outputs `run` writes in its "encode" stage (in parallel with the PNG).
     let snow: Vec<f32> = d.t.iter().map(|&t| 1.0 - t).collect();
@@ -162,16 +162,16 @@ fn stages(c: &mut Criterion) {
         b.iter(|| write_float32_geotiff(n, n, &snow, &dem.georef))
     });
     g.bench_function(format!("encode_glb_{n}"), |b| {
-        b.iter(|| terrain_glb(&dem.heights, n, n, dem.dx, dem.dy, &colour, 262_144))
+        b.iter(|| terrain_glb(&dem.heights, n, n, dem.dx, dem.dy, &color, 262_144))
     });
     g.bench_function(format!("descriptor_render_png_{n}"), |b| {
         b.iter(|| {
             let d = compute(&dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
-            let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
-            encode_rgba(&render(&dem, &colour, 1920, 1080))
+            let color = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+            encode_rgba(&render(&dem, &color, 1920, 1080))
         })
     });
-    drop((d, colour, image, dem, snow));
+    drop((d, color, image, dem, snow));
 
     // Scaling with the number of cells: the descriptor alone, and descriptor + colour + 1080p
     // render + PNG (the 4096² target's work; `snow_terrain::scaling` in the engine's tests fits
@@ -192,8 +192,8 @@ fn stages(c: &mut Criterion) {
             |b, dem| {
                 b.iter(|| {
                     let d = compute(dem, &p, &NoControl, (0.0, 1.0)).expect("not canceled");
-                    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
-                    encode_rgba(&render(dem, &colour, 1920, 1080))
+                    let color = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+                    encode_rgba(&render(dem, &color, 1920, 1080))
                 })
             },
         );

@@ -198,8 +198,9 @@ pub fn render(args: RenderArgs) -> Result<(), CliError> {
             &mut |rel| std::fs::read(dir.join(rel)).ok(),
         ));
     }
-    let result =
-        pool.install(|| set.run_with_aux(name, &params, &input, filename.as_deref(), &aux, &ctl));
+    let result = pool.install(|| {
+        set.run_with_named_inputs(name, &params, &input, filename.as_deref(), &aux, &ctl)
+    });
     bar.finish_and_clear();
     let outputs = match result {
         Ok(o) => o,

@@ -92,7 +92,7 @@ pub trait PipelineSet: Send + Sync + 'static {
     ) -> Result<Vec<Output>, RunError>;
     /// Like [`PipelineSet::run`] with the job's named auxiliary inputs (name, bytes); pipelines
     /// that take none ignore them.
-    fn run_with_aux(
+    fn run_with_named_inputs(
         &self,
         pipeline: &str,
         params: &serde_json::Value,
@@ -110,7 +110,7 @@ pub trait PipelineSet: Send + Sync + 'static {
     }
     /// Decodes the input with its auxiliary inputs (name, bytes), as a run would, and says
     /// which input an error is about (`None` = the main input, else the auxiliary part's name).
-    fn check_with_aux(
+    fn check_with_named_inputs(
         &self,
         pipeline: &str,
         params: &Validated,
@@ -122,7 +122,7 @@ pub trait PipelineSet: Send + Sync + 'static {
             .map_err(|e| (None, e))
     }
     /// The most memory, in bytes, that checking one input of `pipeline` can allocate besides
-    /// the input's bytes, with auxiliary inputs (`with_aux`) or without: what a check reserves
+    /// the input's bytes, with auxiliary inputs (`with_extra_input`) or without: what a check reserves
     /// from the decode budget. Default 0 (a pipeline whose check allocates nothing).
     fn decode_cost(&self, _pipeline: &str, _with_aux: bool) -> u64 {
         0
@@ -202,10 +202,10 @@ impl PipelineSet for EnginePipelines {
         filename: Option<&str>,
         ctl: &dyn Control,
     ) -> Result<Vec<Output>, RunError> {
-        self.run_with_aux(name, params, input, filename, &[], ctl)
+        self.run_with_named_inputs(name, params, input, filename, &[], ctl)
     }
 
-    fn run_with_aux(
+    fn run_with_named_inputs(
         &self,
         name: &str,
         params: &serde_json::Value,
@@ -223,8 +223,10 @@ impl PipelineSet for EnginePipelines {
         })
     }
 
-    fn decode_cost(&self, name: &str, with_aux: bool) -> u64 {
-        PipelineKind::parse(name).map_or(0, |k| registry::decode_cost(k, &self.limits, with_aux))
+    fn decode_cost(&self, name: &str, with_extra_input: bool) -> u64 {
+        PipelineKind::parse(name).map_or(0, |k| {
+            registry::decode_cost(k, &self.limits, with_extra_input)
+        })
     }
 
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
@@ -234,7 +236,7 @@ impl PipelineSet for EnginePipelines {
         }
     }
 
-    fn check_with_aux(
+    fn check_with_named_inputs(
         &self,
         name: &str,
         params: &Validated,

@@ -12,8 +12,8 @@ use crate::{
 use crate::params::Limits;
 
 /// The most memory, in bytes, that decoding one input of `kind` can allocate under `limits`
-/// (besides the input's own bytes), with an auxiliary input (`with_aux`: snow-terrain's
-/// orthophoto) or without. The server reserves it from its decode budget before it checks an
+/// (besides the input's own bytes), with an auxiliary input (`with_extra_input`: snow-terrain's
+/// orthophoto, a cloud version's ambient field) or without. The server reserves it from its decode budget before it checks an
 /// input, so concurrent checks cannot add up to more than the budget. Worst cases:
 /// - **DEM**: 12 B per cell of `max_input_cells`: a sample buffer of up to 8 B per cell
 ///   (float64 GeoTIFF strips) and the `f32` grid; an orthophoto adds 16 B per cell (its RGBA8
@@ -28,16 +28,16 @@ use crate::params::Limits;
 /// to 8192² cells, so nothing short of its header says how much a file needs. Rejected: a
 /// header reader per format (ten formats) to refine it; the budget is what bounds memory, and
 /// small inputs decode in milliseconds, so reserving the worst case costs them little time.
-pub fn decode_cost(kind: PipelineKind, limits: &Limits, with_aux: bool) -> u64 {
+pub fn decode_cost(kind: PipelineKind, limits: &Limits, with_extra_input: bool) -> u64 {
     let cells = limits.max_input_cells;
-    let aux = u64::from(with_aux);
+    let extra = u64::from(with_extra_input);
     match kind {
-        PipelineKind::SnowTerrain => cells.saturating_mul(12 + 16 * aux),
+        PipelineKind::SnowTerrain => cells.saturating_mul(12 + 16 * extra),
         PipelineKind::SnowCover | PipelineKind::Dust => limits
             .max_input_triangles
             .saturating_mul(160)
             .saturating_add(crate::formats::mesh::MeshOptions::default().max_texture_pixels * 4),
-        PipelineKind::Cloud | PipelineKind::CloudEdit => cells.saturating_mul(12 + 12 * aux),
+        PipelineKind::Cloud | PipelineKind::CloudEdit => cells.saturating_mul(12 + 12 * extra),
     }
 }
 
@@ -103,7 +103,7 @@ impl PipelineKind {
 /// Validated parameters of one pipeline.
 #[derive(Debug, Clone, PartialEq)]
 pub enum PipelineParams {
-    SnowTerrain(Box<snow_terrain::Params>),
+    SnowTerrain(Box<snow_terrain::SnowTerrainParams>),
     SnowCover(Box<snow_cover::SnowCoverParams>),
     Cloud(Box<cloud::CloudParams>),
     CloudEdit(Box<CloudEditParams>),
@@ -119,7 +119,7 @@ impl PipelineParams {
     ) -> Result<Self, ParamError> {
         match kind {
             PipelineKind::SnowTerrain => Ok(PipelineParams::SnowTerrain(Box::new(
-                snow_terrain::Params::from_json(v, limits)?,
+                snow_terrain::SnowTerrainParams::from_json(v, limits)?,
             ))),
             PipelineKind::SnowCover => Ok(PipelineParams::SnowCover(Box::new(
                 snow_cover::SnowCoverParams::from_json(v, limits)?,
@@ -155,10 +155,10 @@ impl PipelineParams {
 #[derive(Debug, Clone)]
 pub enum Job {
     SnowTerrain {
-        params: Box<snow_terrain::Params>,
+        params: Box<snow_terrain::SnowTerrainParams>,
         dem: Dem,
         /// The rock colours from an orthophoto ([`ORTHO`]), placed on the DEM's grid.
-        rock: Option<Box<snow_terrain::ortho::RockColours>>,
+        rock: Option<Box<snow_terrain::ortho::RockColors>>,
     },
     SnowCover {
         params: Box<snow_cover::SnowCoverParams>,
@@ -245,7 +245,7 @@ pub fn decode_parts(
     params: PipelineParams,
     bytes: &[u8],
     filename: Option<&str>,
-    aux: &[(String, Vec<u8>)],
+    named_inputs: &[(String, Vec<u8>)],
     limits: &Limits,
 ) -> Result<Job, DecodeError> {
     let main = |error: InputError| DecodeError { part: None, error };
@@ -261,16 +261,11 @@ pub fn decode_parts(
                 vertical_scale: p.vertical_scale,
             };
             let dem = decode_dem(bytes, filename, &opts).map_err(main)?;
-            let rock = match aux.iter().find(|(name, _)| name == ORTHO) {
-                Some((_, b)) => {
-                    let ortho = crate::formats::ortho::decode_ortho(b, limits.max_input_cells)
-                        .map_err(in_ortho)?;
-                    let fallback = snow_terrain::run::rock_linear(&p);
-                    Some(Box::new(
-                        snow_terrain::ortho::rock_colours(&dem, &ortho, fallback)
-                            .map_err(in_ortho)?,
-                    ))
-                }
+            let rock = match named_inputs.iter().find(|(name, _)| name == ORTHO) {
+                Some((_, b)) => Some(Box::new(
+                    snow_terrain::ortho::decode_rock(&dem, b, &p, limits.max_input_cells)
+                        .map_err(in_ortho)?,
+                )),
                 None => None,
             };
             Ok(Job::SnowTerrain {
@@ -280,15 +275,16 @@ pub fn decode_parts(
             })
         }
         PipelineParams::SnowCover(p) => {
-            // The sidecar files the CLI passes as aux inputs.
-            let mesh = snow_cover::run::decode(bytes, filename, aux, &p, limits).map_err(main)?;
+            // The sidecar files the CLI passes as named inputs.
+            let mesh =
+                snow_cover::run::decode(bytes, filename, named_inputs, &p, limits).map_err(main)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
         PipelineParams::Cloud(p) => {
             let bounds = p.bounds().map(|(lo, hi)| [lo, hi]);
             let volume =
                 cloud::input::decode(bytes, filename, bounds, p.dims(), limits).map_err(main)?;
-            let ambient = cloud::input::ambient_field(aux, &volume).map_err(main)?;
+            let ambient = cloud::input::ambient_field(named_inputs, &volume).map_err(main)?;
             Ok(Job::Cloud {
                 params: p,
                 volume,
@@ -297,7 +293,7 @@ pub fn decode_parts(
         }
         PipelineParams::CloudEdit(p) => {
             if let cloud::Edit::SunColor(e) = &p.edit {
-                if let Some((_, blob)) = aux.iter().find(|(name, _)| name == LAYERS) {
+                if let Some((_, blob)) = named_inputs.iter().find(|(name, _)| name == LAYERS) {
                     let (id, layers) =
                         cloud::layers::Layers::from_bytes(blob, limits.max_output_pixels)
                             .map_err(main)?;
@@ -313,7 +309,7 @@ pub fn decode_parts(
             }
             let volume =
                 cloud::input::decode(bytes, filename, p.bounds, p.dims, limits).map_err(main)?;
-            let ambient = cloud::input::ambient_field(aux, &volume).map_err(main)?;
+            let ambient = cloud::input::ambient_field(named_inputs, &volume).map_err(main)?;
             Ok(Job::CloudEdit {
                 params: p,
                 volume,
@@ -321,7 +317,8 @@ pub fn decode_parts(
             })
         }
         PipelineParams::Dust(p) => {
-            let mesh = dust::run::decode(bytes, filename, aux, &p, limits).map_err(main)?;
+            let mesh =
+                dust::run::decode(bytes, filename, named_inputs, &p, limits).map_err(main)?;
             Ok(Job::Dust { params: p, mesh })
         }
     }

@@ -91,7 +91,8 @@ pub async fn submit(
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
     if !aux_inputs.is_empty() {
-        return submit_with_aux(&st, pipeline, part, input, aux_inputs, params, wait).await;
+        return submit_with_named_inputs(&st, pipeline, part, input, aux_inputs, params, wait)
+            .await;
     }
 
     // A JSON body names its asset: an identical request already queued, running or done is
@@ -131,7 +132,7 @@ pub async fn submit(
 
 /// [`submit`] with auxiliary inputs: each is stored as an asset, the request key covers them,
 /// and the input is decoded with them (a 4xx naming the part at fault) before the job is queued.
-async fn submit_with_aux(
+async fn submit_with_named_inputs(
     st: &AppState,
     pipeline: &'static str,
     part: &'static str,
@@ -173,7 +174,7 @@ async fn submit_with_aux(
     // goes away and this request is dropped meanwhile.
     tokio::task::spawn_blocking(move || {
         let _reservation = reservation;
-        pipelines.check_with_aux(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes)
+        pipelines.check_with_named_inputs(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes)
     })
     .await
     .map_err(blocking_err)?
@@ -348,9 +349,9 @@ async fn reserve_decode(
     st: &AppState,
     pipeline: &str,
     input_bytes: u64,
-    with_aux: bool,
+    with_extra_input: bool,
 ) -> Result<admission::Reservation, ApiError> {
-    let cost = st.jobs.pipelines().decode_cost(pipeline, with_aux);
+    let cost = st.jobs.pipelines().decode_cost(pipeline, with_extra_input);
     st.decodes.reserve(input_bytes.saturating_add(cost)).await
 }
 

@@ -139,7 +139,7 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
             let span = tracing::info_span!("job", job = %job_id, pipeline = %name);
             let _e = span.enter();
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                pipelines.run_with_aux(
+                pipelines.run_with_named_inputs(
                     &name,
                     &params,
                     &input,

@@ -139,7 +139,7 @@ impl PipelineSet for WithSleepy {
             self.0.run(name, p, input, f, ctl)
         }
     }
-    fn run_with_aux(
+    fn run_with_named_inputs(
         &self,
         name: &str,
         p: &Value,
@@ -151,7 +151,7 @@ impl PipelineSet for WithSleepy {
         if name == "sleepy" {
             Sleepy.run(name, p, input, f, ctl)
         } else {
-            self.0.run_with_aux(name, p, input, f, aux, ctl)
+            self.0.run_with_named_inputs(name, p, input, f, aux, ctl)
         }
     }
     fn describe_input(
@@ -170,10 +170,10 @@ impl PipelineSet for WithSleepy {
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
         self.0.aux_parts(name)
     }
-    fn decode_cost(&self, name: &str, with_aux: bool) -> u64 {
-        self.0.decode_cost(name, with_aux)
+    fn decode_cost(&self, name: &str, with_extra_input: bool) -> u64 {
+        self.0.decode_cost(name, with_extra_input)
     }
-    fn check_with_aux(
+    fn check_with_named_inputs(
         &self,
         name: &str,
         p: &Validated,
@@ -184,7 +184,7 @@ impl PipelineSet for WithSleepy {
         if name == "sleepy" {
             Sleepy.check_input(name, p, input, f).map_err(|e| (None, e))
         } else {
-            self.0.check_with_aux(name, p, input, f, aux)
+            self.0.check_with_named_inputs(name, p, input, f, aux)
         }
     }
 }

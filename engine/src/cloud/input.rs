@@ -42,10 +42,11 @@ pub fn decode(
 
 /// The version's per-voxel ambient field among the auxiliary inputs ([`AMBIENT_FIELD`]), if any.
 pub fn ambient_field(
-    aux: &[(String, Vec<u8>)],
+    named_inputs: &[(String, Vec<u8>)],
     volume: &Volume,
 ) -> Result<Option<AmbientField>, InputError> {
-    aux.iter()
+    named_inputs
+        .iter()
         .find(|(name, _)| name == AMBIENT_FIELD)
         .map(|(_, bytes)| AmbientField::from_bytes(bytes, volume.len()))
         .transpose()

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::grid::{GridFrame, DENSITY_THRESHOLD};
 use crate::geom::sun_direction as sun_from_angles;
+use crate::geom::vec::DVec3;
 use crate::geom::Volume;
 use crate::params::OrbitDefaults;
 
@@ -63,40 +64,28 @@ pub struct KappaChoice {
 /// Column densities ∫ρ dl of a bundle of parallel rays along `d` covering the box, only for the
 /// rays that cross a voxel with ρ ≥ `min_rho`.
 fn columns(volume: &Volume, g: &GridFrame, d: [f64; 3], min_rho: f32) -> Vec<f64> {
-    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    let d = DVec3::from(d);
+    let len = d.length();
     if !(len.is_finite() && len > 0.0) {
         return Vec::new();
     }
-    let n = d.map(|x| x / len);
+    let n = d / len;
     // An orthonormal basis (u, v) across the rays.
-    let helper = if n[1].abs() < 0.9 {
-        [0.0, 1.0, 0.0]
-    } else {
-        [1.0, 0.0, 0.0]
-    };
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let norm = |a: [f64; 3]| {
-        let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-        a.map(|x| x / l)
-    };
-    let u = norm(cross(n, helper));
-    let v = cross(n, u);
+    let helper = if n.y.abs() < 0.9 { DVec3::Y } else { DVec3::X };
+    let u = n.cross(helper);
+    let u = u / u.length();
+    let v = n.cross(u);
     let centre = [0, 1, 2].map(|k| 0.5 * (g.lo[k] + g.hi[k]));
     let half = [0, 1, 2].map(|k| 0.5 * (g.hi[k] - g.lo[k]));
-    let radius = (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
+    let radius = DVec3::from(half).length();
     // The box's extent across the rays.
     let (mut ue, mut ve) = (0f64, 0f64);
     for c in 0..8 {
-        let p = [0, 1, 2].map(|k| if (c >> k) & 1 == 1 { half[k] } else { -half[k] });
-        ue = ue.max((p[0] * u[0] + p[1] * u[1] + p[2] * u[2]).abs());
-        ve = ve.max((p[0] * v[0] + p[1] * v[1] + p[2] * v[2]).abs());
+        let p = DVec3::from([0, 1, 2].map(|k| if (c >> k) & 1 == 1 { half[k] } else { -half[k] }));
+        ue = ue.max(p.dot(u).abs());
+        ve = ve.max(p.dot(v).abs());
     }
+    let n = n.to_array();
     let dt = g.min_h();
     let m = RAYS_PER_SIDE;
     (0..m * m)

@@ -328,7 +328,7 @@ pub fn propagate(
     let Some(Setup {
         fine,
         pin_at,
-        colours,
+        colors,
     }) = set_up(dims, guide, cloud, pins, opts.screening)
     else {
         return Ok(((0..n).into_par_iter().map(fill).collect(), stats));
@@ -352,7 +352,7 @@ pub fn propagate(
         .map(|i| match pin_at[i] {
             fine::NONE if fine.reached[i] => [0.0; 3],
             fine::NONE => fill(i),
-            p => colours[p as usize],
+            p => colors[p as usize],
         })
         .collect();
     for (u, &i) in fine.voxel.iter().enumerate() {
@@ -366,7 +366,7 @@ pub fn propagate(
 struct Setup {
     fine: FineLevel,
     pin_at: Vec<u32>,
-    colours: Vec<[f32; 3]>,
+    colors: Vec<[f32; 3]>,
 }
 
 /// The fine level of [`propagate`]'s problem; None when there is nothing to solve (sizes that
@@ -383,14 +383,14 @@ fn set_up(
         return None;
     }
     let mut pin_at = vec![fine::NONE; n];
-    let mut colours = Vec::with_capacity(pins.len());
+    let mut colors = Vec::with_capacity(pins.len());
     for &(i, c) in pins {
         if i < n {
-            pin_at[i] = colours.len() as u32;
-            colours.push(c);
+            pin_at[i] = colors.len() as u32;
+            colors.push(c);
         }
     }
-    if colours.is_empty() {
+    if colors.is_empty() {
         return None;
     }
     // The cloud, pins included; the LLW weights only between its voxels.
@@ -404,11 +404,11 @@ fn set_up(
         None => vec![true; n],
     };
     let a = llw::llw_weights_in(dims, guide, mask.then_some(&cloud[..]));
-    let fine = fine_level(dims, &a, &cloud, &pin_at, &colours, screening);
+    let fine = fine_level(dims, &a, &cloud, &pin_at, &colors, screening);
     Some(Setup {
         fine,
         pin_at,
-        colours,
+        colors,
     })
 }
 

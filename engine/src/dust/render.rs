@@ -116,13 +116,13 @@ impl Shells<'_> {
 }
 
 /// Renders the shells' overlay for `view` (built for `camera`): passes 1 and 2 of the module doc.
-/// Progress under stage `"shells"`, mapped onto `frac`.
+/// Progress under stage `"shells"`, mapped onto `progress_span`.
 pub fn shell_overlay(
     view: &MeshRenderer,
     camera: &Camera,
     sh: &Shells,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<Overlay, Canceled> {
     let proj = *view.projection();
     let (w, h) = (proj.width as usize, proj.height as usize);
@@ -156,7 +156,8 @@ pub fn shell_overlay(
         ctl.checkpoint()?;
         ctl.progress(
             "shells",
-            frac.0 + (frac.1 - frac.0) * (done as f32 / total as f32).min(1.0),
+            progress_span.0
+                + (progress_span.1 - progress_span.0) * (done as f32 / total as f32).min(1.0),
         );
         let lay = layer(&front, sh.amount, i, sh.shells, &mut remap);
         let Some(tex) = sh.textures.get(i as usize - 1) else {

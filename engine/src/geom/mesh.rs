@@ -13,6 +13,8 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
+use super::vec::Vec3;
+
 /// Which file axis points up, for formats without a fixed convention (OBJ, STL, PLY); the mesh
 /// pipelines' `up_axis` parameter (`"y"`, `"z"`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -135,13 +137,7 @@ impl Mesh {
     /// Unnormalised face normal (cross product of two edges; length = 2 × area).
     #[inline]
     pub fn face_normal(&self, t: usize) -> [f32; 3] {
-        let [a, b, c] = self.corners(t);
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
+        let [a, b, c] = self.corners(t).map(Vec3::from);
+        (b - a).cross(c - a).to_array()
     }
 }

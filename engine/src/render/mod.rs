@@ -15,7 +15,6 @@
 //! right-handed; the grid is centred on the origin horizontally.
 
 pub mod adaptive;
-pub(crate) mod camera;
 pub mod image;
 pub mod mesh;
 pub mod raster;
@@ -26,6 +25,6 @@ pub use image::RgbaImage;
 pub use sheet::contact_sheet;
 
 pub use terrain::{
-    render_terrain, render_with, render_with_path, Hit, Lighting, RenderPath, TerrainAccel,
+    render_accel, render_accel_on_path, render_terrain, Hit, Lighting, RenderPath, TerrainAccel,
     TerrainScene, RASTER_CELLS_PER_PIXEL,
 };

@@ -87,7 +87,7 @@ fn render_scene(
     width: u32,
     height: u32,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
     let mut instances = vec![MeshInstance {
         positions: &mesh.positions,
@@ -116,7 +116,7 @@ fn render_scene(
         width,
         height,
         ctl,
-        frac,
+        progress_span,
     )
 }
 

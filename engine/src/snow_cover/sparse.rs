@@ -45,6 +45,7 @@
 
 use crate::geom::mesh::bounds_of;
 use crate::geom::unit as unit_vector;
+use crate::geom::vec::{DVec3, Vec3};
 
 /// Sparse-flake coverage from the two angles (degrees) and the snow amount (module doc).
 /// `ground_deg` ∈ [0, 180] (clamped), `incidence_deg` ∈ [−90, 90] (clamped), `depth` and
@@ -125,15 +126,10 @@ pub fn vertex_coverage_with_probability(
 ) -> Vec<f32> {
     let mut acc = vec![(0.0f64, 0.0f64); positions.len()];
     for &t in triangles {
-        let [a, b, c] = t.map(|i| positions[i as usize].map(f64::from));
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let [a, b, c] = t.map(|i| DVec3::from(positions[i as usize].map(f64::from)));
+        let n = (b - a).cross(c - a);
+        let len = n.length();
+        let n = n.to_array();
         if len <= 0.0 || len.is_nan() {
             continue;
         }
@@ -451,15 +447,10 @@ pub fn flake_particles(
     let flake_area = |r: f32| 1.299_038 * r * r;
     let face = |t: &[u32; 3]| -> Option<([f32; 3], f32, f32)> {
         let [a, b, c] = t.map(|i| positions.get(i as usize).copied());
-        let (a, b, c) = (a?, b?, c?);
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let (a, b, c) = (Vec3::from(a?), Vec3::from(b?), Vec3::from(c?));
+        let n = (b - a).cross(c - a);
+        let len = n.length();
+        let n = n.to_array();
         let cov = t
             .iter()
             .map(|&i| coverage.get(i as usize).copied().unwrap_or(0.0))
@@ -502,12 +493,8 @@ pub fn flake_particles(
         }
         let [a, b, c] = t.map(|i| positions[i as usize]);
         // In-plane axes.
-        let e1 = crate::geom::unit([b[0] - a[0], b[1] - a[1], b[2] - a[2]]);
-        let e2 = [
-            n[1] * e1[2] - n[2] * e1[1],
-            n[2] * e1[0] - n[0] * e1[2],
-            n[0] * e1[1] - n[1] * e1[0],
-        ];
+        let e1 = unit_vector((Vec3::from(b) - Vec3::from(a)).to_array());
+        let e2 = Vec3::from(n).cross(Vec3::from(e1)).to_array();
         for _ in 0..count {
             let (mut r1, mut r2) = (unit(&mut st), unit(&mut st));
             if r1 + r2 > 1.0 {

@@ -355,20 +355,20 @@ const STAGES: [(&str, f32); 7] = [
 const TSA_BLOCK_ROWS: usize = 256;
 
 /// Stages 1–6 and the slope term. Reports progress through `ctl` with stage names "smooth",
-/// "tsa", "transfer", "altitude", "smooth_t", "sun", "slope" and fractions scaled into [`frac.0`, `frac.1`] of the whole job;
+/// "tsa", "transfer", "altitude", "smooth_t", "sun", "slope" and fractions scaled into [`progress_span.0`, `progress_span.1`] of the whole job;
 /// checks for cancellation between stages, smoothing passes and blocks of TSA rows.
 ///
 /// Allocates about eight `width × height` `f32` grids at peak. Cost for 4096² on 2 cores with the
-/// defaults: a few hundred milliseconds (see the `descriptor_4096` test).
+/// defaults: a few hundred milliseconds (`cargo bench --bench snow_terrain -- descriptor`).
 pub fn compute(
     dem: &Dem,
     p: &DescriptorParams,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<Descriptor, Canceled> {
     let (w, h) = (dem.width, dem.height);
     let mut timings = Vec::with_capacity(STAGES.len());
-    let mut prog = Progress::new(ctl, frac);
+    let mut prog = Progress::new(ctl, progress_span);
     let cell = (dem.dx * dem.dy).abs().sqrt();
     let (radius, passes) =
         smoothing_for(p.smooth_length, cell, p.smooth_radius, p.smooth_iterations);

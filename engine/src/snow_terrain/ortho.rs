@@ -17,18 +17,19 @@
 //! transparent pixels (alpha, blended), keep `rock_color`. An ortho that covers no grid point at
 //! all is refused (it is almost surely the wrong file).
 //!
-//! The colours are converted to linear RGB before blending, like `rock_color` ([`super::colour`]).
+//! The colours are converted to linear RGB before blending, like `rock_color` ([`super::color`]).
 
 use rayon::prelude::*;
 
+use super::params::SnowTerrainParams;
 use crate::error::InputError;
-use crate::formats::ortho::Ortho;
+use crate::formats::ortho::{decode_ortho, Ortho};
 use crate::geom::Dem;
 use crate::render::image::srgb8_to_linear;
 
 /// A rock colour per grid point (linear RGB), from an ortho placed on the DEM.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RockColours {
+pub struct RockColors {
     /// `dem.width × dem.height` linear RGB, or per point the fallback where the ortho is absent.
     pub rgb: Vec<[f32; 3]>,
     /// Share of grid points the ortho covers (0–1].
@@ -59,13 +60,22 @@ fn crs_name(epsg: Option<u32>) -> String {
     epsg.map_or("an unknown CRS".into(), |e| format!("EPSG:{e}"))
 }
 
+/// The rock colours of `dem`'s grid from the orthophoto file `bytes` (decoded within
+/// `max_cells` pixels), `p`'s `rock_color` where it has none. Errors: the file does not decode,
+/// or [`rock_colours`]'.
+pub fn decode_rock(
+    dem: &Dem,
+    bytes: &[u8],
+    p: &SnowTerrainParams,
+    max_cells: u64,
+) -> Result<RockColors, InputError> {
+    let ortho = decode_ortho(bytes, max_cells)?;
+    rock_colors(dem, &ortho, p.rock_linear())
+}
+
 /// The rock colours of `dem`'s grid from `ortho`, `fallback` (linear) where it has none.
 /// Errors: the CRSs differ, or the ortho covers no grid point (422).
-pub fn rock_colours(
-    dem: &Dem,
-    ortho: &Ortho,
-    fallback: [f32; 3],
-) -> Result<RockColours, InputError> {
+pub fn rock_colors(dem: &Dem, ortho: &Ortho, fallback: [f32; 3]) -> Result<RockColors, InputError> {
     let (w, h) = (dem.width, dem.height);
     // Grid point (col, row) → ortho pixel coordinates (u, v), pixel centres at +0.5.
     let georef = match (&ortho.georef, &dem.georef.transform) {
@@ -182,7 +192,7 @@ pub fn rock_colours(
             "the orthophoto does not overlap the DEM (no grid point lies inside it)".into(),
         ));
     }
-    Ok(RockColours {
+    Ok(RockColors {
         rgb,
         coverage: covered as f64 / (w * h).max(1) as f64,
         placement: if georef.is_some() {
@@ -227,7 +237,7 @@ mod tests {
     #[test]
     fn plain_images_are_stretched_pixel_for_cell() {
         // 4 × 2 image on a 4 × 2 DEM: each grid point takes its own pixel exactly.
-        let r = rock_colours(&dem(None, None), &ortho(4, 2, None), [0.0; 3]).unwrap();
+        let r = rock_colors(&dem(None, None), &ortho(4, 2, None), [0.0; 3]).unwrap();
         assert_eq!(r.placement, "stretched");
         for k in 0..8 {
             assert_eq!(r.rgb[k][0], srgb8_to_linear((k * 10) as u8));
@@ -246,7 +256,7 @@ mod tests {
             epsg: Some(32633),
             geographic: false,
         };
-        let r = rock_colours(&dem(Some(t), Some(32633)), &ortho(6, 4, Some(o)), [0.5; 3]).unwrap();
+        let r = rock_colors(&dem(Some(t), Some(32633)), &ortho(6, 4, Some(o)), [0.5; 3]).unwrap();
         assert_eq!(r.placement, "georeferenced");
         // Grid point (0, 0) at x 1005 is west of the ortho: fallback.
         assert_eq!(r.rgb[0], [0.5; 3]);
@@ -265,7 +275,7 @@ mod tests {
             epsg: Some(4326),
             geographic: true,
         };
-        let e = rock_colours(&dem(Some(t), Some(32633)), &ortho(4, 2, Some(o)), [0.0; 3])
+        let e = rock_colors(&dem(Some(t), Some(32633)), &ortho(4, 2, Some(o)), [0.0; 3])
             .unwrap_err()
             .to_string();
         assert!(e.contains("EPSG:4326") && e.contains("EPSG:32633"), "{e}");
@@ -274,7 +284,7 @@ mod tests {
             epsg: Some(31985),
             ..o
         };
-        assert!(rock_colours(&dem(Some(t), Some(32725)), &ortho(4, 2, Some(o)), [0.0; 3]).is_ok());
+        assert!(rock_colors(&dem(Some(t), Some(32725)), &ortho(4, 2, Some(o)), [0.0; 3]).is_ok());
     }
 
     #[test]
@@ -286,7 +296,7 @@ mod tests {
             geographic: false,
         };
         assert!(matches!(
-            rock_colours(&dem(Some(t), None), &ortho(4, 2, Some(o)), [0.0; 3]),
+            rock_colors(&dem(Some(t), None), &ortho(4, 2, Some(o)), [0.0; 3]),
             Err(InputError::Unusable(_))
         ));
     }

@@ -2,13 +2,13 @@
 //! validated form the pipeline runs on. Names follow SPEC §1; every field says its unit, range and
 //! default.
 
+use std::collections::BTreeSet;
+
 use serde::{Deserialize, Serialize};
 
 use super::descriptor::DescriptorParams;
 use crate::params::Limits;
-use crate::params::{
-    camera_spec, image_size, parse_hex_color, range, CameraSpec, OrbitDefaults, WireCamera,
-};
+use crate::params::{camera_spec, image_size, range, CameraSpec, Color, OrbitDefaults, WireCamera};
 use crate::ParamError;
 
 /// A parameter sweep: the same DEM rendered once per value of one parameter, laid out as a
@@ -73,6 +73,49 @@ pub struct WireParams {
     pub auto_exaggeration: Option<bool>,
 }
 
+/// A file a run can produce besides `report.json` (always) and `sweep.png` (with `sweep`); the
+/// order of the variants is the order of the outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+pub enum TerrainOutput {
+    /// `render.png`: the 3-D view (SPEC §1 "Rendering").
+    #[serde(rename = "render.png")]
+    Render,
+    /// `snow_cover.tif`: the descriptor as a float GeoTIFF.
+    #[serde(rename = "snow_cover.tif")]
+    SnowCover,
+    /// `descriptor.png`: the descriptor as a grey preview.
+    #[serde(rename = "descriptor.png")]
+    Descriptor,
+    /// `terrain.glb`: the snowy terrain as a glTF mesh.
+    #[serde(rename = "terrain.glb")]
+    Glb,
+}
+
+impl TerrainOutput {
+    /// Every output, in output order.
+    pub const ALL: [TerrainOutput; 4] = [
+        TerrainOutput::Render,
+        TerrainOutput::SnowCover,
+        TerrainOutput::Descriptor,
+        TerrainOutput::Glb,
+    ];
+
+    /// The output's file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            TerrainOutput::Render => "render.png",
+            TerrainOutput::SnowCover => "snow_cover.tif",
+            TerrainOutput::Descriptor => "descriptor.png",
+            TerrainOutput::Glb => "terrain.glb",
+        }
+    }
+
+    /// The output named `name`, if any.
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|o| o.name() == name)
+    }
+}
+
 /// The files a run can produce besides `report.json` (always) and `sweep.png` (with `sweep`).
 pub const OUTPUT_NAMES: &[&str] = &[
     "render.png",
@@ -81,12 +124,19 @@ pub const OUTPUT_NAMES: &[&str] = &[
     "terrain.glb",
 ];
 
+/// The default rock colour (`rock_color`).
+pub const DEFAULT_ROCK_COLOR: &str = "#6e665c";
+/// The default snow colour (`snow_color`).
+pub const DEFAULT_SNOW_COLOR: &str = "#f4f7fb";
+/// The default sea colour (`sea_color`, when `sea_level` is set).
+pub const DEFAULT_SEA_COLOR: &str = "#2a4a63";
+
 /// The named parameter sets (`preset`).
 pub const PRESETS: &[&str] = &["winter", "paper"];
 
 /// Validated parameters of one `snow-terrain` run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Params {
+pub struct SnowTerrainParams {
     /// Named starting values of the descriptor, one of [`PRESETS`]; parameters given explicitly
     /// override the preset's. `"winter"`: [`DescriptorParams::default`], snow on the upper part
     /// of any DEM (issue 17). `"paper"`: [`DescriptorParams::paper`], the paper's literal
@@ -108,14 +158,14 @@ pub struct Params {
     /// is `sun_azimuth_deg`, the same as the descriptor's sun correction. Default 35.
     pub sun_elevation_deg: f64,
     /// Bare-rock colour, sRGB hex. Default `#6e665c`.
-    pub rock_color: String,
+    pub rock_color: Color,
     /// Snow colour, sRGB hex. Default `#f4f7fb`.
-    pub snow_color: String,
+    pub snow_color: Color,
     /// Colour of the sea: grid points at or below `sea_level` (which hold no snow) are drawn in
     /// it instead of `rock_color` (or the orthophoto), so a coast reads as a coast and not as a
     /// grey rock plain. sRGB hex. Default `#2a4a63`; there is no sea (and no sea colour) when
     /// `sea_level` is unset, as under the `paper` preset.
-    pub sea_color: Option<String>,
+    pub sea_color: Option<Color>,
     /// Lambert shading from the sun plus sky ambient; false draws flat colours like the paper.
     /// Default true.
     pub shading: bool,
@@ -140,10 +190,10 @@ pub struct Params {
     /// is no render (a GIS user asking for `snow_cover.tif` alone pays for the descriptor only),
     /// and an interactive preview asking for `render.png` alone skips the GeoTIFF, preview and
     /// glTF encoders. Default: all four.
-    pub outputs: Vec<String>,
+    pub outputs: BTreeSet<TerrainOutput>,
     /// One validated parameter set per sweep value (derived from `sweep`).
     #[serde(skip)]
-    pub sweep_runs: Vec<Params>,
+    pub sweep_runs: Vec<SnowTerrainParams>,
     /// How the terrain is shown (issue 17).
     #[serde(flatten)]
     pub view: View,
@@ -181,7 +231,7 @@ pub struct View {
 }
 
 impl View {
-    /// The view of `preset` (already validated by [`Params`]): `paper` is the look of the
+    /// The view of `preset` (already validated by [`SnowTerrainParams`]): `paper` is the look of the
     /// paper's figures and of this pipeline before issue 17 (flat sky light, grey haze, the
     /// bounding-box camera, exaggeration 1 unless given).
     fn from_wire(w: &WireParams, preset: &str) -> Result<Self, ParamError> {
@@ -226,36 +276,40 @@ pub const SWEEPABLE: &[&str] = &[
     "sky_tint",
 ];
 
-/// Validates `outputs`: known names, no repeats; returned in [`OUTPUT_NAMES`] order.
-fn output_names(given: Option<&[String]>) -> Result<Vec<String>, ParamError> {
+/// Validates `outputs`: known names, no repeats; the set of them (all four when not given).
+fn output_set(given: Option<&[String]>) -> Result<BTreeSet<TerrainOutput>, ParamError> {
     let Some(given) = given else {
-        return Ok(OUTPUT_NAMES.iter().map(|s| s.to_string()).collect());
+        return Ok(TerrainOutput::ALL.into_iter().collect());
     };
+    let mut set = BTreeSet::new();
     for (i, name) in given.iter().enumerate() {
-        if !OUTPUT_NAMES.contains(&name.as_str()) {
+        let Some(output) = TerrainOutput::parse(name) else {
             return Err(ParamError::new(
                 format!("outputs[{i}]"),
                 format!("no output {name:?}; one of: {}", OUTPUT_NAMES.join(", ")),
             ));
-        }
-        if given[..i].contains(name) {
+        };
+        if !set.insert(output) {
             return Err(ParamError::new(
                 format!("outputs[{i}]"),
                 format!("{name:?} is listed twice"),
             ));
         }
     }
-    Ok(OUTPUT_NAMES
-        .iter()
-        .filter(|n| given.iter().any(|g| g == *n))
-        .map(|s| s.to_string())
-        .collect())
+    Ok(set)
 }
 
-impl Params {
-    /// Whether `name` (one of [`OUTPUT_NAMES`]) was asked for.
-    pub fn wants(&self, name: &str) -> bool {
-        self.outputs.iter().any(|o| o == name)
+impl SnowTerrainParams {
+    /// `rock_color` in linear RGB (the fallback where an orthophoto has no pixels).
+    pub fn rock_linear(&self) -> [f32; 3] {
+        self.rock_color
+            .srgb8()
+            .map(crate::render::image::srgb8_to_linear)
+    }
+
+    /// Whether `output` was asked for.
+    pub fn wants(&self, output: TerrainOutput) -> bool {
+        self.outputs.contains(&output)
     }
 
     /// Validates wire JSON: unknown names, wrong types and out-of-range values are errors naming
@@ -451,16 +505,15 @@ impl Params {
                 ),
             ));
         }
-        let rock_color = w.rock_color.clone().unwrap_or_else(|| "#6e665c".into());
-        let snow_color = w.snow_color.clone().unwrap_or_else(|| "#f4f7fb".into());
-        parse_hex_color("rock_color", &rock_color)?;
-        parse_hex_color("snow_color", &snow_color)?;
-        let sea_color = descriptor
-            .sea_level
-            .map(|_| w.sea_color.clone().unwrap_or_else(|| "#2a4a63".into()));
-        if let Some(c) = &sea_color {
-            parse_hex_color("sea_color", c)?;
-        }
+        let color = |field: &str, given: &Option<String>, default: &str| {
+            Color::parse(field, given.as_deref().unwrap_or(default))
+        };
+        let rock_color = color("rock_color", &w.rock_color, DEFAULT_ROCK_COLOR)?;
+        let snow_color = color("snow_color", &w.snow_color, DEFAULT_SNOW_COLOR)?;
+        let sea_color = match descriptor.sea_level {
+            Some(_) => Some(color("sea_color", &w.sea_color, DEFAULT_SEA_COLOR)?),
+            None => None,
+        };
         let cell_size = match w.cell_size {
             Some(c) => Some(range("cell_size", Some(c), 1.0, 1e-6, 1e6)?),
             None => None,
@@ -470,7 +523,7 @@ impl Params {
             None => None,
         };
         let view = View::from_wire(w, &preset)?;
-        Ok(Params {
+        Ok(SnowTerrainParams {
             preset,
             width,
             height,
@@ -496,7 +549,7 @@ impl Params {
             cell_size,
             vertical_scale,
             sweep: None,
-            outputs: output_names(w.outputs.as_deref())?,
+            outputs: output_set(w.outputs.as_deref())?,
             sweep_runs: Vec::new(),
             view,
         })

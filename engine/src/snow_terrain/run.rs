@@ -7,21 +7,20 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::altitude::snow_by_elevation_decile;
-use super::colour::{albedo, albedo_with_rock};
+use super::color::{albedo, albedo_with_rock};
 use super::descriptor;
-use super::ortho::RockColours;
-use super::params::Params;
+use super::ortho::RockColors;
+use super::params::{SnowTerrainParams, TerrainOutput};
 use super::view;
 use crate::formats::geotiff_write::write_float32_geotiff;
 use crate::formats::glb::terrain_glb;
 use crate::formats::png_write::{encode_rgba, RgbaPngStream};
+use crate::geom::vec::sun_direction;
 use crate::geom::Dem;
-use crate::params::parse_hex_color;
 use crate::render::image::RgbaImage;
 use crate::render::sheet::contact_sheet;
 use crate::render::terrain::{
-    prepare_view, render_prepared, render_with, sun_direction, Lighting, RenderPath, TerrainAccel,
-    TerrainScene,
+    prepare_view, render_accel, render_prepared, Lighting, RenderPath, TerrainAccel, TerrainScene,
 };
 use crate::{Canceled, Control, Output};
 
@@ -30,20 +29,20 @@ const DESCRIPTOR_END: f32 = 0.45;
 const RENDER_END: f32 = 0.85;
 
 /// The render scene of `dem` with these (exaggerated) heights and colours.
-fn scene_of<'a>(dem: &Dem, heights: &'a [f32], colour: &'a [[f32; 3]]) -> TerrainScene<'a> {
+fn scene_of<'a>(dem: &Dem, heights: &'a [f32], color: &'a [[f32; 3]]) -> TerrainScene<'a> {
     TerrainScene {
         width: dem.width,
         height: dem.height,
         dx: dem.dx,
         dy: dem.dy,
         heights,
-        albedo: colour,
+        albedo: color,
     }
 }
 
 /// Lighting of the render; the sun's azimuth is the descriptor's (given, or from the DEM's
 /// hemisphere: [`descriptor::sun_azimuth_for`]).
-fn lighting(dem: &Dem, p: &Params) -> Lighting {
+fn lighting(dem: &Dem, p: &SnowTerrainParams) -> Lighting {
     let (azimuth, _) = descriptor::sun_azimuth_for(dem, p.descriptor.sun_azimuth_deg);
     Lighting {
         sun_dir: sun_direction(f64::from(azimuth), p.sun_elevation_deg),
@@ -68,7 +67,7 @@ fn world_heights(dem: &Dem, exaggeration: f32) -> std::borrow::Cow<'_, [f32]> {
 }
 
 /// The view's vertical exaggeration: automatic ([`view::auto_exaggeration`]) or the given one.
-fn view_exaggeration(dem: &Dem, p: &Params) -> f32 {
+fn view_exaggeration(dem: &Dem, p: &SnowTerrainParams) -> f32 {
     if p.view.auto_exaggeration {
         view::auto_exaggeration(dem)
     } else {
@@ -78,35 +77,21 @@ fn view_exaggeration(dem: &Dem, p: &Params) -> f32 {
 
 /// Colours of the descriptor `t` for the given parameters (the rock colour per grid point when
 /// an orthophoto gives it).
-fn colours(dem: &Dem, t: &[f32], p: &Params, rock: Option<&RockColours>) -> Vec<[f32; 3]> {
-    // Validated at parse time; fall back to mid-grey rather than fail.
-    let snow = parse_hex_color("snow_color", &p.snow_color).unwrap_or([244, 247, 251]);
+fn colors(dem: &Dem, t: &[f32], p: &SnowTerrainParams, rock: Option<&RockColors>) -> Vec<[f32; 3]> {
+    let snow = p.snow_color.srgb8();
     let mut c = match rock {
         Some(r) => albedo_with_rock(t, &r.rgb, snow),
-        None => albedo(
-            t,
-            parse_hex_color("rock_color", &p.rock_color).unwrap_or([110, 102, 92]),
-            snow,
-        ),
+        None => albedo(t, p.rock_color.srgb8(), snow),
     };
     // The sea (`sea_color`): grid points at or below `sea_level`, which hold no snow.
     if let (Some(sea), Some(level)) = (&p.sea_color, p.descriptor.sea_level) {
-        if let Ok(sea) = parse_hex_color("sea_color", sea) {
-            let sea = sea.map(crate::render::image::srgb8_to_linear);
-            c.par_iter_mut()
-                .zip(dem.heights.par_iter())
-                .filter(|(_, &h)| h <= level)
-                .for_each(|(c, _)| *c = sea);
-        }
+        let sea = sea.srgb8().map(crate::render::image::srgb8_to_linear);
+        c.par_iter_mut()
+            .zip(dem.heights.par_iter())
+            .filter(|(_, &h)| h <= level)
+            .for_each(|(c, _)| *c = sea);
     }
     c
-}
-
-/// `rock_color` in linear RGB (the fallback where an orthophoto has no pixels).
-pub fn rock_linear(p: &Params) -> [f32; 3] {
-    parse_hex_color("rock_color", &p.rock_color)
-        .unwrap_or([110, 102, 92])
-        .map(crate::render::image::srgb8_to_linear)
 }
 
 /// `descriptor.png`: t as grey (0 = snow black… no: 255·t, so snow is dark and rock bright is
@@ -135,7 +120,7 @@ fn descriptor_preview(dem: &Dem, t: &[f32]) -> RgbaImage {
 /// The body runs on a rayon pool thread (`rayon::scope` moves it there and blocks the caller):
 /// the descriptor's many small parallel loops then split their work in the pool directly
 /// instead of each waking the pool from outside and waiting to be woken in turn.
-pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
+pub fn run(dem: &Dem, p: &SnowTerrainParams, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     run_with_rock(dem, None, p, ctl)
 }
 
@@ -143,8 +128,8 @@ pub fn run(dem: &Dem, p: &Params, ctl: &dyn Control) -> Result<Vec<Output>, Canc
 /// step 7), or `rock_color` when `None`.
 pub fn run_with_rock(
     dem: &Dem,
-    rock: Option<&RockColours>,
-    p: &Params,
+    rock: Option<&RockColors>,
+    p: &SnowTerrainParams,
     ctl: &dyn Control,
 ) -> Result<Vec<Output>, Canceled> {
     rayon::scope(|_| run_in_pool(dem, rock, p, ctl))
@@ -152,8 +137,8 @@ pub fn run_with_rock(
 
 fn run_in_pool(
     dem: &Dem,
-    rock: Option<&RockColours>,
-    p: &Params,
+    rock: Option<&RockColors>,
+    p: &SnowTerrainParams,
     ctl: &dyn Control,
 ) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
@@ -171,17 +156,17 @@ fn run_in_pool(
     // loops with serial stretches between them that leave a core idle. Both sides only read
     // the DEM; neither reports progress but the descriptor (the set-up has no progress of its
     // own). Stage "render_setup" is the set-up's time, overlapping "smooth" … "colour".
-    let ((d, colour, colour_ms), geometry) = {
+    let ((d, color, color_ms), geometry) = {
         let (dc, geometry) = rayon::join(
             || -> Result<_, Canceled> {
                 let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
                 ctl.progress("colour", DESCRIPTOR_END);
                 let t0 = Instant::now();
-                let colour = colours(dem, &d.t, p, rock);
-                Ok((d, colour, ms(t0)))
+                let color = colors(dem, &d.t, p, rock);
+                Ok((d, color, ms(t0)))
             },
             || -> Result<_, Canceled> {
-                if !p.wants("render.png") {
+                if !p.wants(TerrainOutput::Render) {
                     return Ok(None);
                 }
                 let t0 = Instant::now();
@@ -207,7 +192,7 @@ fn run_in_pool(
         );
         (dc?, geometry?)
     };
-    timings.push(("colour".to_string(), colour_ms));
+    timings.push(("colour".to_string(), color_ms));
 
     // The outputs that do not need the picture (snow_cover.tif, descriptor.png, terrain.glb)
     // and the report's figures are made while the render draws (they read the descriptor and
@@ -235,7 +220,7 @@ fn run_in_pool(
                 return (Ok(None), 0.0, 0.0);
             };
             let t0 = Instant::now();
-            let accel = accel.with_albedo(&colour);
+            let accel = accel.with_albedo(&color);
             let image = render_prepared(
                 &accel,
                 view,
@@ -248,19 +233,19 @@ fn run_in_pool(
         || {
             rayon::join(
                 || {
-                    p.wants("snow_cover.tif")
+                    p.wants(TerrainOutput::SnowCover)
                         .then(|| write_float32_geotiff(dem.width, dem.height, &snow, &dem.georef))
                 },
                 || {
                     rayon::join(
                         || {
-                            p.wants("descriptor.png")
+                            p.wants(TerrainOutput::Descriptor)
                                 .then(|| encode_rgba(&descriptor_preview(dem, &d.t)))
                         },
                         || {
                             rayon::join(
                                 || {
-                                    p.wants("terrain.glb").then(|| {
+                                    p.wants(TerrainOutput::Glb).then(|| {
                                         let glb_heights = if exaggeration
                                             == p.descriptor.vertical_exaggeration
                                         {
@@ -274,7 +259,7 @@ fn run_in_pool(
                                             dem.height,
                                             dem.dx,
                                             dem.dy,
-                                            &colour,
+                                            &color,
                                             p.mesh_max_vertices,
                                         )
                                     })
@@ -392,10 +377,10 @@ fn report_figures(dem: &Dem, snow: &[f32]) -> (usize, usize, f64, Option<(f32, f
 /// output size, labelled `param = value`.
 fn sweep_sheet(
     dem: &Dem,
-    rock: Option<&RockColours>,
-    p: &Params,
+    rock: Option<&RockColors>,
+    p: &SnowTerrainParams,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
     let n = p.sweep_runs.len();
     let columns = if n <= 4 { n } else { 3 };
@@ -409,13 +394,15 @@ fn sweep_sheet(
         .zip(p.sweep.iter().flat_map(|s| s.values.iter()))
         .enumerate()
     {
-        let f0 = frac.0 + (frac.1 - frac.0) * i as f32 / n as f32;
-        let f1 = frac.0 + (frac.1 - frac.0) * (i as f32 + 0.5) / n as f32;
-        let f2 = frac.0 + (frac.1 - frac.0) * (i as f32 + 1.0) / n as f32;
+        let f0 = progress_span.0 + (progress_span.1 - progress_span.0) * i as f32 / n as f32;
+        let f1 =
+            progress_span.0 + (progress_span.1 - progress_span.0) * (i as f32 + 0.5) / n as f32;
+        let f2 =
+            progress_span.0 + (progress_span.1 - progress_span.0) * (i as f32 + 1.0) / n as f32;
         let d = descriptor::compute(dem, &run.descriptor, ctl, (f0, f1))?;
-        let colour = colours(dem, &d.t, run, rock);
+        let color = colors(dem, &d.t, run, rock);
         let heights = world_heights(dem, view_exaggeration(dem, run));
-        let scene = scene_of(dem, &heights, &colour);
+        let scene = scene_of(dem, &heights, &color);
         let accel = TerrainAccel::new(&scene);
         let camera = view::camera(
             &run.camera,
@@ -423,7 +410,7 @@ fn sweep_sheet(
             f64::from(tw) / f64::from(th),
             run.view.fill_frame,
         );
-        let img = render_with(&accel, &camera, &lighting(dem, run), tw, th, ctl, (f1, f2))?;
+        let img = render_accel(&accel, &camera, &lighting(dem, run), tw, th, ctl, (f1, f2))?;
         tiles.push((img, format!("{name} = {value}")));
     }
     Ok(contact_sheet(&tiles, columns))

@@ -3,9 +3,10 @@
 //! viewpoints; these are this service's choices for "no parameters", documented at
 //! [`super::params::View`].
 
+use crate::geom::camera::Camera;
+use crate::geom::vec::{normalized, DVec3};
 use crate::geom::Dem;
 use crate::params::CameraSpec;
-use crate::render::camera::{add, cross, dot, normalize, scale, sub, Camera};
 use crate::render::terrain::TerrainScene;
 
 /// Relief (highest − lowest valid elevation) as a fraction of the longer horizontal side that
@@ -137,19 +138,16 @@ pub fn camera(spec: &CameraSpec, scene: &TerrainScene, aspect: f64, fill: bool) 
         if x0 > x1 {
             break;
         }
-        let f = normalize(sub(cam.target, cam.eye));
-        let r = normalize(cross(f, cam.up));
-        let u = cross(r, f);
-        let d = dot(sub(cam.target, cam.eye), f);
+        let to_target = DVec3::from(cam.target) - DVec3::from(cam.eye);
+        let f = normalized(to_target);
+        let r = normalized(f.cross(DVec3::from(cam.up)));
+        let u = r.cross(f);
+        let d = to_target.dot(f);
         let tan_half = (fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan();
         let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-        center = add(
-            center,
-            add(
-                scale(r, cx * d * tan_half * aspect),
-                scale(u, cy * d * tan_half),
-            ),
-        );
+        center = (DVec3::from(center)
+            + (r * (cx * d * tan_half * aspect) + u * (cy * d * tan_half)))
+            .to_array();
         cam = Camera::orbit_framing(
             center,
             azimuth_deg,

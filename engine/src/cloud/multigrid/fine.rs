@@ -111,7 +111,7 @@ pub(super) fn fine_level(
     a: &[[f32; 3]],
     cloud: &[bool],
     pin_at: &[u32],
-    colours: &[[f32; 3]],
+    colors: &[[f32; 3]],
     screening: f32,
 ) -> FineLevel {
     let [nx, ny, _] = dims;
@@ -120,16 +120,16 @@ pub(super) fn fine_level(
     let free = |i: usize| reached[i] && pin_at[i] == NONE;
     let red = |i: usize| (i % nx + (i / nx) % ny + i / (nx * ny)) % 2 == 0;
     // Red unknowns, then black ones, each in grid order.
-    let of_colour = |colour: bool| -> Vec<u32> {
+    let of_color = |color: bool| -> Vec<u32> {
         (0..n)
             .into_par_iter()
-            .filter(|&i| free(i) && red(i) == colour)
+            .filter(|&i| free(i) && red(i) == color)
             .map(|i| i as u32)
             .collect()
     };
-    let mut voxel = of_colour(true);
+    let mut voxel = of_color(true);
     let red_count = voxel.len();
-    voxel.extend(of_colour(false));
+    voxel.extend(of_color(false));
     let mut index = vec![NONE; n];
     for (u, &i) in voxel.iter().enumerate() {
         index[i as usize] = u as u32;
@@ -153,7 +153,7 @@ pub(super) fn fine_level(
                         return;
                     }
                     if pin_at[j] != NONE {
-                        let x = colours[pin_at[j] as usize];
+                        let x = colors[pin_at[j] as usize];
                         s += w;
                         for q in 0..3 {
                             rhs[q] += f64::from(w) * f64::from(x[q]);
@@ -187,7 +187,7 @@ pub(super) fn fine_level(
         excess.extend(ex);
         b.extend(bv);
     }
-    let colours = if red_count == 0 || red_count == voxel.len() {
+    let colors = if red_count == 0 || red_count == voxel.len() {
         vec![0, voxel.len()]
     } else {
         vec![0, red_count, voxel.len()]
@@ -198,7 +198,7 @@ pub(super) fn fine_level(
             col,
             c,
             excess,
-            colours,
+            colors,
         },
         b,
         voxel,

@@ -10,7 +10,7 @@
 use rayon::prelude::*;
 
 use super::aggregate::Prolongation;
-use super::graph::{colour_order, Adjacency, Graph};
+use super::graph::{color_order, Adjacency, Graph};
 
 /// Coarse rows per parallel task: at least this many, in at most [`BLOCKS`] tasks.
 const CHUNK: usize = 256;
@@ -104,15 +104,15 @@ pub(super) fn galerkin<A: Adjacency>(
         col,
         c,
         excess,
-        colours: vec![0, nc],
+        colors: vec![0, nc],
     };
-    let (perm, colours) = colour_order(&g);
+    let (perm, colors) = color_order(&g);
     p.renumber(&perm);
-    permute(&g, &perm, colours)
+    permute(&g, &perm, colors)
 }
 
 /// `g` with point `i` renumbered `perm[i]`.
-fn permute(g: &Graph, perm: &[u32], colours: Vec<usize>) -> Graph {
+fn permute(g: &Graph, perm: &[u32], colors: Vec<usize>) -> Graph {
     let n = g.excess.len();
     let mut inv = vec![0usize; n];
     for (i, &p) in perm.iter().enumerate() {
@@ -136,7 +136,7 @@ fn permute(g: &Graph, perm: &[u32], colours: Vec<usize>) -> Graph {
         col,
         c,
         excess,
-        colours,
+        colors,
     }
 }
 

@@ -36,7 +36,7 @@ pub(super) struct Graph {
     pub c: Vec<f32>,
     pub excess: Vec<f32>,
     /// Colour `k` is the points `colours[k]..colours[k + 1]`.
-    pub colours: Vec<usize>,
+    pub colors: Vec<usize>,
 }
 
 impl Adjacency for Graph {
@@ -60,10 +60,10 @@ const CHUNK: usize = 512;
 impl Graph {
     /// One multicolour Gauss–Seidel sweep of `A e = b` (colours in order, or reversed).
     pub fn smooth(&self, e: &mut [Rgb], b: &[Rgb], reverse: bool) {
-        let k = self.colours.len() - 1;
+        let k = self.colors.len() - 1;
         for step in 0..k {
-            let colour = if reverse { k - 1 - step } else { step };
-            let (lo, hi) = (self.colours[colour], self.colours[colour + 1]);
+            let color = if reverse { k - 1 - step } else { step };
+            let (lo, hi) = (self.colors[color], self.colors[color + 1]);
             let (before, rest) = e.split_at_mut(lo);
             let (mine, after) = rest.split_at_mut(hi - lo);
             let before: &[Rgb] = before;
@@ -189,16 +189,16 @@ pub(super) fn dot3(a: &[Rgb], b: &[Rgb]) -> [f64; 3] {
 
 /// A greedy colouring of a symmetric graph in index order and the numbering that puts the
 /// colours in contiguous ranges: returns (`new index of old i`, colour boundaries).
-pub(super) fn colour_order<A: Adjacency>(g: &A) -> (Vec<u32>, Vec<usize>) {
+pub(super) fn color_order<A: Adjacency>(g: &A) -> (Vec<u32>, Vec<usize>) {
     let n = g.len();
-    let mut colour = vec![u32::MAX; n];
+    let mut color = vec![u32::MAX; n];
     let mut used: Vec<usize> = Vec::new();
     let mut ncol = 0usize;
     for i in 0..n {
         used.clear();
         g.each(i, |j, _| {
-            if colour[j] != u32::MAX {
-                used.push(colour[j] as usize);
+            if color[j] != u32::MAX {
+                used.push(color[j] as usize);
             }
         });
         used.sort_unstable();
@@ -210,18 +210,18 @@ pub(super) fn colour_order<A: Adjacency>(g: &A) -> (Vec<u32>, Vec<usize>) {
                 break;
             }
         }
-        colour[i] = k as u32;
+        color[i] = k as u32;
         ncol = ncol.max(k + 1);
     }
     let mut bounds = vec![0usize; ncol + 1];
-    for &c in &colour {
+    for &c in &color {
         bounds[c as usize + 1] += 1;
     }
     for k in 0..ncol {
         bounds[k + 1] += bounds[k];
     }
     let mut next = bounds.clone();
-    let perm = colour
+    let perm = color
         .iter()
         .map(|&c| {
             let p = next[c as usize];

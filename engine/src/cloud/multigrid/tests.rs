@@ -81,9 +81,9 @@ fn check_galerkin<A: Adjacency>(a: &A, p: &Prolongation, c: &Graph, what: &str) 
             );
         });
     }
-    for k in 0..c.colours.len() - 1 {
-        for i in c.colours[k]..c.colours[k + 1] {
-            c.each(i, |j, _| assert!(j < c.colours[k] || j >= c.colours[k + 1]));
+    for k in 0..c.colors.len() - 1 {
+        for i in c.colors[k]..c.colors[k + 1] {
+            c.each(i, |j, _| assert!(j < c.colors[k] || j >= c.colors[k + 1]));
         }
     }
 }
@@ -140,9 +140,9 @@ fn galerkin_operator_is_pt_a_p_and_symmetric() {
             });
         }
         // Colours: no conductance inside a colour range.
-        for k in 0..c.colours.len() - 1 {
-            for i in c.colours[k]..c.colours[k + 1] {
-                c.each(i, |j, _| assert!(j < c.colours[k] || j >= c.colours[k + 1]));
+        for k in 0..c.colors.len() - 1 {
+            for i in c.colors[k]..c.colors[k + 1] {
+                c.each(i, |j, _| assert!(j < c.colors[k] || j >= c.colors[k + 1]));
             }
         }
     }

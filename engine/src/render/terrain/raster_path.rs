@@ -31,8 +31,9 @@ use rayon::prelude::*;
 
 use super::{Hit, Px, Shader, TerrainAccel};
 use crate::control::{Canceled, Control};
+use crate::geom::camera::{Camera, RayGen};
+use crate::geom::vec::DVec3;
 use crate::render::adaptive::{render_adaptive_with, RowSink, Sample};
-use crate::render::camera::{dot, Camera, RayGen};
 use crate::render::image::RgbaImage;
 use crate::render::raster::{Mesh, Projection, Rasterizer};
 
@@ -143,7 +144,7 @@ pub(super) fn render_raster(
     buffer: Vec<u8>,
     rows: &RowSink,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
     let accel = base.accel;
     let s = accel.scene();
@@ -188,7 +189,10 @@ pub(super) fn render_raster(
         rows(y0, data);
         let n = done.fetch_add(1, Ordering::Relaxed) + 1;
         let f = n as f32 / bands as f32;
-        ctl.progress("render", frac.0 + (frac.1 - frac.0) * f.min(1.0));
+        ctl.progress(
+            "render",
+            progress_span.0 + (progress_span.1 - progress_span.0) * f.min(1.0),
+        );
     };
     let shade = |id: Option<u32>, x: f64, y: f64, row: usize| shader.shade(id, x, y, row);
     // Without holes a sample that hits no triangle is the sky of its image row (`shade`):
@@ -287,8 +291,7 @@ impl RasterShader<'_, '_> {
         };
         let p = acc.hit_position(&hit);
         let e = self.base.eye;
-        let d = [p[0] - e[0], p[1] - e[1], p[2] - e[2]];
-        hit.t = dot(d, d).sqrt();
+        hit.t = (DVec3::from(p) - DVec3::from(e)).length();
         hit
     }
 

@@ -82,7 +82,7 @@ fn displayed(v: &Volume, s: &CloudState, view: &View, px: &[[u32; 2]]) -> Vec<[f
 }
 
 #[test]
-fn sun_colour_is_the_least_squares_optimum() {
+fn sun_color_is_the_least_squares_optimum() {
     let v = cumulus(40);
     let base = CloudState {
         background: Some(Color::parse("background", "#203040").unwrap()),
@@ -107,17 +107,17 @@ fn sun_colour_is_the_least_squares_optimum() {
     assert!(cloud_px.len() > 30, "{}", cloud_px.len());
     let mut strokes = vec![];
     let mut all_px = vec![];
-    let mut colours = vec![];
+    let mut colors = vec![];
     let third = cloud_px.len() / 3;
-    for (k, colour) in ["#ffb080", "#e0a070", "#f0c0a0"].iter().enumerate() {
+    for (k, color) in ["#ffb080", "#e0a070", "#f0c0a0"].iter().enumerate() {
         let px: Vec<[u32; 2]> = cloud_px[k * third..(k + 1) * third].to_vec();
         all_px.extend(px.iter().copied());
-        let c = phenomena_engine::params::Color::parse("c", colour).unwrap();
-        colours.extend(std::iter::repeat_n(
+        let c = phenomena_engine::params::Color::parse("c", color).unwrap();
+        colors.extend(std::iter::repeat_n(
             c.srgb8().map(srgb8_to_linear),
             px.len(),
         ));
-        strokes.push(json!({"color": colour, "pixels": px}));
+        strokes.push(json!({"color": color, "pixels": px}));
     }
     let e = Edit::from_json(
         "sun-color",
@@ -135,7 +135,7 @@ fn sun_colour_is_the_least_squares_optimum() {
     let err = |s: &CloudState| -> f64 {
         displayed(&v, s, e.view(), &all_px)
             .iter()
-            .zip(&colours)
+            .zip(&colors)
             .map(|(d, c)| {
                 (0..3)
                     .map(|q| (d[q] - f64::from(c[q])).powi(2))
@@ -154,7 +154,7 @@ fn sun_colour_is_the_least_squares_optimum() {
 }
 
 #[test]
-fn single_colour_stroke_without_ambient_is_eq_6() {
+fn single_color_stroke_without_ambient_is_eq_6() {
     let v = cumulus(40);
     let base = CloudState {
         ambient: [0.0; 3],
@@ -439,7 +439,7 @@ fn dragging_the_shadow_puts_q_in_rs_shadow() {
 }
 
 #[test]
-fn ambient_pins_keep_their_colour_and_outputs_are_named() {
+fn ambient_pins_keep_their_color_and_outputs_are_named() {
     let v = cumulus(32);
     let base = CloudState::default();
     let px: Vec<[u32; 2]> = (0..10).map(|i| [26 + i, 24]).collect();

@@ -465,7 +465,7 @@ fn view_json() -> Value {
 }
 
 #[test]
-fn the_sun_colour_least_squares_holds_in_multiple_mode() {
+fn the_sun_color_least_squares_holds_in_multiple_mode() {
     let v = cumulus(40);
     let base = multiple_state(CloudState {
         background: Some(Color::parse("background", "#203040").unwrap()),

@@ -142,7 +142,7 @@ fn an_edit_that_cannot_be_done_is_unprocessable_with_the_reason() {
 /// reads them instead of decoding the volume and marching, and gives the same version byte for
 /// byte; layers of another view are not used, and a corrupt blob is an input error.
 #[test]
-fn a_sun_colour_edit_reads_the_render_layers_and_gives_the_same_version() {
+fn a_sun_color_edit_reads_the_render_layers_and_gives_the_same_version() {
     let bytes = ball();
     let l = Limits::default();
     let view =

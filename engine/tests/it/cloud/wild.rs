@@ -449,7 +449,7 @@ fn a_stroke_on_sky_and_a_stroke_on_unlit_cloud_are_different_refusals() {
 
 /// The `set` edit replaces κ (dropping the choice), the sun and its colour; at least one.
 #[test]
-fn the_set_edit_replaces_kappa_sun_and_colour() {
+fn the_set_edit_replaces_kappa_sun_and_color() {
     let name = WILD[3];
     let bytes = wild_bytes(name);
     let base = default_render(name).state();

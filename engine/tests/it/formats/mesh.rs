@@ -150,12 +150,12 @@ fn fzk_haus_glb() {
     assert_eq!((m.positions.len(), m.triangles.len()), (20080, 35906));
     // 200 primitives in 59 meshes, instanced by 216 nodes into 294 (node, primitive) parts.
     assert_eq!(m.parts.len(), 294);
-    let colours: std::collections::BTreeSet<String> = m
+    let colors: std::collections::BTreeSet<String> = m
         .parts
         .iter()
         .map(|p| format!("{:?}", p.base_color))
         .collect();
-    assert!(colours.len() > 3, "{colours:?}");
+    assert!(colors.len() > 3, "{colors:?}");
     // Y-up after the root node's −90° about X: the plot is 18 m × 16 m, the house ~7 m high.
     let (lo, hi) = m.bounds().unwrap();
     assert!(close3(lo, [-3.0, -1.0, -13.0], 1e-3), "{lo:?}");

@@ -199,7 +199,7 @@ fn obj_without_its_mtl_is_grey_with_a_note_not_an_error() {
 }
 
 #[test]
-fn ply_vertex_colours_are_kept_linear() {
+fn ply_vertex_colors_are_kept_linear() {
     let bytes = std::fs::read(test_data("mesh/colored_airplane.ply")).unwrap();
     let mesh = decode_mesh(
         &bytes,

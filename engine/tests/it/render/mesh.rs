@@ -122,7 +122,7 @@ fn glb_textured_cube_is_valid() {
 }
 
 #[test]
-fn glb_mesh_parts_become_coloured_nodes() {
+fn glb_mesh_parts_become_colored_nodes() {
     // Three parts of one mesh (two quads and an empty part) sharing no vertices.
     let positions = vec![
         [0.0, 0.0, 0.0],
@@ -185,7 +185,7 @@ fn glb_mesh_parts_become_coloured_nodes() {
 }
 
 #[test]
-fn glb_vertex_colours_are_valid() {
+fn glb_vertex_colors_are_valid() {
     let (p, n, _, t) = cube();
     let colors: Vec<[f32; 4]> = p
         .iter()
@@ -345,7 +345,7 @@ fn render_box_casts_shadow_away_from_the_sun() {
 }
 
 #[test]
-fn render_fog_pulls_far_surfaces_to_the_fog_colour() {
+fn render_fog_pulls_far_surfaces_to_the_fog_color() {
     let (mut p, mut t) = quad(0.0, 0.0, -1.0, 0.5);
     let (p2, t2) = quad(0.0, 0.0, -30.0, 5.0);
     t.extend(t2.iter().map(|tr| tr.map(|i| i + 4)));

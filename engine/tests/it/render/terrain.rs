@@ -328,13 +328,13 @@ fn volcano_scene_data() -> (usize, usize, f64, Vec<f32>, Vec<[f32; 3]>) {
         .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
     let albedo = heights
         .iter()
-        .map(|&v| height_colour((v - lo) / (hi - lo)))
+        .map(|&v| height_color((v - lo) / (hi - lo)))
         .collect();
     (w, h, cell, heights, albedo)
 }
 
 /// Green lowland → brown → grey rock → snow, linear RGB.
-fn height_colour(t: f32) -> [f32; 3] {
+fn height_color(t: f32) -> [f32; 3] {
     let stops = [
         (0.0, [0.10, 0.22, 0.06]),
         (0.45, [0.22, 0.28, 0.10]),
@@ -542,7 +542,7 @@ fn ramp_albedo(heights: &[f32]) -> Vec<[f32; 3]> {
         .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
     heights
         .iter()
-        .map(|&v| height_colour((v - lo) / (hi - lo).max(1e-6)))
+        .map(|&v| height_color((v - lo) / (hi - lo).max(1e-6)))
         .collect()
 }
 
@@ -624,14 +624,14 @@ fn timings_paper() {
         }
     }
     // The same case forced through the ray caster (the path used before the rasteriser).
-    use phenomena_engine::render::{render_with_path, RenderPath};
+    use phenomena_engine::render::{render_accel_on_path, RenderPath};
     time(
         "paper, ray caster forced (incl. pyramid), 4 spp + shadows",
         10,
         &mut || {
             let acc = TerrainAccel::new(&scene);
             img = Some(
-                render_with_path(
+                render_accel_on_path(
                     &acc,
                     &cam,
                     &light,
@@ -652,7 +652,7 @@ fn timings_paper() {
 #[test]
 #[ignore]
 fn timings_crossover() {
-    use phenomena_engine::render::{render_with_path, RenderPath};
+    use phenomena_engine::render::{render_accel_on_path, RenderPath};
     use std::time::Instant;
     let (w, _, _, colo) = load_asc("/work/shared/data/dem/colorado_front_range_srtmgl3.asc");
     let paper: Vec<f32> = (0..200)
@@ -684,7 +684,7 @@ fn timings_crossover() {
         let mut line = format!("cells/pixels {ratio:4.2} ({nw}x{nh}):");
         for path in [RenderPath::RayCast, RenderPath::Raster] {
             let run = || {
-                render_with_path(&acc, &cam, &light, 900, 600, path, &NoControl, (0.0, 1.0))
+                render_accel_on_path(&acc, &cam, &light, 900, 600, path, &NoControl, (0.0, 1.0))
                     .unwrap()
             };
             run();
@@ -990,7 +990,7 @@ fn agreement(a: &RgbaImage, b: &RgbaImage, tol: u8) -> (f64, u8) {
 
 #[test]
 fn raster_path_matches_the_ray_caster() {
-    use phenomena_engine::render::{render_with_path, RenderPath};
+    use phenomena_engine::render::{render_accel_on_path, RenderPath};
     // (name, w, h, cell, heights, albedo, camera, image size)
     let (vw, vh, vcell, vheights, valbedo) = volcano_scene_data();
     let rw = 120;
@@ -1054,7 +1054,7 @@ fn raster_path_matches_the_ray_caster() {
             ..Lighting::default()
         };
         let acc = TerrainAccel::new(&scene);
-        let render = |p| render_with_path(&acc, &cam, &light, iw, ih, p, &NoControl, (0.0, 1.0));
+        let render = |p| render_accel_on_path(&acc, &cam, &light, iw, ih, p, &NoControl, (0.0, 1.0));
         let ray = render(RenderPath::RayCast).unwrap();
         let ras = render(RenderPath::Raster).unwrap();
         let (share, worst) = agreement(&ray, &ras, 3);

@@ -4,7 +4,7 @@
 use phenomena_engine::formats::dem::{decode_dem, DemOptions};
 use phenomena_engine::params::Limits;
 use phenomena_engine::render::image::RgbaImage;
-use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::snow_terrain::{run, SnowTerrainParams};
 use phenomena_engine::{Canceled, Control, NoControl, Output};
 use serde_json::json;
 
@@ -23,8 +23,8 @@ fn dem(name: &str) -> phenomena_engine::geom::Dem {
     .unwrap()
 }
 
-fn params(v: serde_json::Value) -> Params {
-    Params::from_json(&v, &Limits::default()).unwrap()
+fn params(v: serde_json::Value) -> SnowTerrainParams {
+    SnowTerrainParams::from_json(&v, &Limits::default()).unwrap()
 }
 
 fn output<'a>(outs: &'a [Output], name: &str) -> &'a [u8] {
@@ -180,7 +180,7 @@ fn bad_sweeps_and_params_name_the_field() {
         ),
         (json!({"outputs": "render.png"}), "outputs"),
     ] {
-        let e = Params::from_json(&v, &l).unwrap_err();
+        let e = SnowTerrainParams::from_json(&v, &l).unwrap_err();
         assert_eq!(e.field, field, "{v}: {e}");
     }
 }
@@ -299,16 +299,16 @@ fn cpu_ms() -> f64 {
 /// each of the four stages (cumulative).
 fn descriptor_render_png(dem: &phenomena_engine::geom::Dem) -> (Vec<u8>, [f64; 4]) {
     use phenomena_engine::formats::png_write::encode_rgba;
-    use phenomena_engine::snow_terrain::colour::albedo;
+    use phenomena_engine::snow_terrain::color::albedo;
     use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
     use phenomena_engine::snow_terrain::overview_render;
     let t = std::time::Instant::now();
     let ms = || t.elapsed().as_secs_f64() * 1e3;
     let d = compute(dem, &DescriptorParams::default(), &NoControl, (0.0, 1.0)).unwrap();
     let t1 = ms();
-    let colour = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
+    let color = albedo(&d.t, [110, 102, 92], [244, 247, 251]);
     let t2 = ms();
-    let img = overview_render(dem, &colour, 1920, 1080).unwrap();
+    let img = overview_render(dem, &color, 1920, 1080).unwrap();
     let t3 = ms();
     let png = encode_rgba(&img);
     (png, [t1, t2, t3, ms()])

@@ -8,8 +8,8 @@ use phenomena_engine::geom::Dem;
 use phenomena_engine::params::Limits;
 use phenomena_engine::render::image::{linear_to_srgb8, RgbaImage};
 use phenomena_engine::render::terrain::Lighting;
-use phenomena_engine::snow_terrain::ortho::rock_colours;
-use phenomena_engine::snow_terrain::{run, run_with_rock, Params};
+use phenomena_engine::snow_terrain::ortho::rock_colors;
+use phenomena_engine::snow_terrain::{run, run_with_rock, SnowTerrainParams};
 use phenomena_engine::{NoControl, Output};
 use serde_json::{json, Value};
 
@@ -34,8 +34,8 @@ fn ortho_bytes(name: &str) -> Vec<u8> {
     .unwrap()
 }
 
-fn params(v: Value) -> Params {
-    Params::from_json(&v, &Limits::default()).unwrap()
+fn params(v: Value) -> SnowTerrainParams {
+    SnowTerrainParams::from_json(&v, &Limits::default()).unwrap()
 }
 
 fn output<'a>(outs: &'a [Output], name: &str) -> &'a [u8] {
@@ -209,7 +209,7 @@ fn explicit_exaggeration_and_the_paper_preset_turn_the_rule_off() {
     let p = params(base);
     let again = params(serde_json::to_value(&p).unwrap());
     assert_eq!(p, again);
-    assert!(Params::from_json(&json!({"preset": "pretty"}), &Limits::default()).is_err());
+    assert!(SnowTerrainParams::from_json(&json!({"preset": "pretty"}), &Limits::default()).is_err());
 }
 
 /// Ambient occlusion darkens hollows: on the Tanzawa DEM the mean terrain luminance with AO is
@@ -276,7 +276,7 @@ fn default_render_is_snow_white_on_real_mountains() {
 /// (the image's extent is 0.4 % smaller than the DEM's), far closer than the same PNG mirrored;
 /// and it changes the render and the glTF's vertex colours.
 #[test]
-fn ortho_colours_the_rock() {
+fn ortho_colors_the_rock() {
     let d = dem("olinda_dem_utm25s.tif");
     let max = Limits::default().max_input_cells;
     let geo = decode_ortho(&ortho_bytes("olinda_l7_rgb_utm25s.tif"), max).unwrap();
@@ -287,8 +287,8 @@ fn ortho_colours_the_rock() {
     assert_eq!(png.rgba, geo.rgba, "the PNG holds the GeoTIFF's pixels");
     assert_eq!((jpg.width, jpg.height), (349, 352));
     let fallback = [0.1, 0.1, 0.1];
-    let a = rock_colours(&d, &geo, fallback).unwrap();
-    let b = rock_colours(&d, &png, fallback).unwrap();
+    let a = rock_colors(&d, &geo, fallback).unwrap();
+    let b = rock_colors(&d, &png, fallback).unwrap();
     assert_eq!(a.placement, "georeferenced");
     assert_eq!(b.placement, "stretched");
     assert!(a.coverage > 0.98, "{}", a.coverage);
@@ -296,7 +296,7 @@ fn ortho_colours_the_rock() {
     for row in mirrored.rgba.chunks_exact_mut(png.width) {
         row.reverse();
     }
-    let m = rock_colours(&d, &mirrored, fallback).unwrap();
+    let m = rock_colors(&d, &mirrored, fallback).unwrap();
     let diff = |x: &[[f32; 3]], y: &[[f32; 3]]| -> f64 {
         x.iter()
             .zip(y)
@@ -328,6 +328,6 @@ fn ortho_in_another_crs_is_refused() {
         Limits::default().max_input_cells,
     )
     .unwrap();
-    let e = rock_colours(&d, &geo, [0.0; 3]).unwrap_err().to_string();
+    let e = rock_colors(&d, &geo, [0.0; 3]).unwrap_err().to_string();
     assert!(e.contains("EPSG:31985") && e.contains("EPSG:4326"), "{e}");
 }

@@ -12,7 +12,7 @@ use phenomena_engine::geom::{Dem, GeoRef};
 use phenomena_engine::params::Limits;
 use phenomena_engine::snow_terrain::altitude::snow_by_elevation_decile;
 use phenomena_engine::snow_terrain::descriptor::{compute, sun_azimuth_for, DescriptorParams};
-use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::snow_terrain::{run, SnowTerrainParams};
 use phenomena_engine::{NoControl, Output};
 use serde_json::json;
 
@@ -78,7 +78,7 @@ fn dems() -> Vec<(String, Dem)> {
 }
 
 fn default_params() -> DescriptorParams {
-    Params::from_json(&json!({}), &Limits::default())
+    SnowTerrainParams::from_json(&json!({}), &Limits::default())
         .unwrap()
         .descriptor
 }
@@ -499,7 +499,7 @@ fn golden_winter_descriptors() {
     ] {
         let dem = load(&shared(file));
         let p =
-            Params::from_json(&json!({"outputs": ["descriptor.png"]}), &Limits::default()).unwrap();
+            SnowTerrainParams::from_json(&json!({"outputs": ["descriptor.png"]}), &Limits::default()).unwrap();
         let outs = run(&dem, &p, &NoControl).unwrap();
         assert_golden(
             "snow-terrain",
@@ -533,7 +533,7 @@ fn golden_winter_renders() {
         ),
     ] {
         let dem = load(&shared(file));
-        let p = Params::from_json(
+        let p = SnowTerrainParams::from_json(
             &json!({"outputs": ["render.png"], "width": 480, "height": 320}),
             &Limits::default(),
         )
@@ -554,10 +554,10 @@ fn golden_winter_renders() {
 #[test]
 fn explicit_values_override_the_preset() {
     let l = Limits::default();
-    let p = Params::from_json(&json!({"preset": "paper", "swept_snow": 0.5}), &l).unwrap();
+    let p = SnowTerrainParams::from_json(&json!({"preset": "paper", "swept_snow": 0.5}), &l).unwrap();
     assert_eq!(p.descriptor.swept_snow, 0.5);
     assert_eq!(p.descriptor.snowline, Some(0.0));
-    let p = Params::from_json(&json!({"snowline": 2500}), &l).unwrap();
+    let p = SnowTerrainParams::from_json(&json!({"snowline": 2500}), &l).unwrap();
     let dem = load(&shared("colorado_front_range_srtmgl3_f32.tif"));
     let d = compute(&dem, &p.descriptor, &NoControl, (0.0, 1.0)).unwrap();
     assert_eq!(d.resolved.snowline_m, Some(2500.0));
@@ -578,7 +578,7 @@ fn explicit_values_override_the_preset() {
         (json!({"sun_strength": -0.1}), "sun_strength"),
         (json!({"smooth_length": 0}), "smooth_length"),
     ] {
-        let e = Params::from_json(&v, &l).unwrap_err();
+        let e = SnowTerrainParams::from_json(&v, &l).unwrap_err();
         assert_eq!(e.field, field, "{v}: {e}");
     }
 }

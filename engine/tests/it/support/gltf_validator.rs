@@ -7,7 +7,7 @@ use std::process::Command;
 
 use phenomena_engine::formats::dem::{decode_dem, DemOptions};
 use phenomena_engine::params::Limits;
-use phenomena_engine::snow_terrain::{run, Params};
+use phenomena_engine::snow_terrain::{run, SnowTerrainParams};
 use phenomena_engine::NoControl;
 use serde_json::{json, Value};
 
@@ -85,7 +85,7 @@ fn terrain_glb_is_valid() {
             &DemOptions::default(),
         )
         .unwrap();
-        let params = Params::from_json(&p, &Limits::default()).unwrap();
+        let params = SnowTerrainParams::from_json(&p, &Limits::default()).unwrap();
         let outs = run(&dem, &params, &NoControl).unwrap();
         let glb = &outs.iter().find(|o| o.name == "terrain.glb").unwrap().bytes;
         assert_valid(file, glb);

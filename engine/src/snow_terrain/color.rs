@@ -43,7 +43,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn blend_ends_are_the_two_colours() {
+    fn blend_ends_are_the_two_colors() {
         let a = albedo(&[0.0, 1.0, 0.5], [10, 20, 30], [250, 250, 250]);
         assert_eq!(a[0], [250u8; 3].map(srgb8_to_linear));
         assert_eq!(a[1], [10u8, 20, 30].map(srgb8_to_linear));

@@ -43,16 +43,20 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use rayon::prelude::*;
-
 use super::image::RgbaImage;
 use super::raster::{render_adaptive, Fragment, Mesh as RMesh, Projection, Rasterizer, Sample};
 use crate::control::{Canceled, Control};
 use crate::geom::camera::Camera;
-use crate::geom::mesh::{Mesh, MeshPart, Texture, TextureWrap};
+use crate::geom::mesh::{Mesh, MeshPart};
 use crate::geom::vec::{normalized, sun_direction, unit, DVec3};
 use crate::params::MeshView;
-use crate::render::image::{linear_to_srgb8, srgb8_to_linear};
+
+mod scene;
+mod shadow;
+mod texture;
+
+use scene::{merge, Scene};
+use shadow::ShadowMap;
 
 /// Per-triangle or per-vertex surface colour (albedo, linear RGB 0..1).
 #[derive(Debug, Clone, Copy)]
@@ -184,452 +188,6 @@ pub fn frame_camera(
         fov_deg,
         aspect,
     )
-}
-
-/// A base-colour texture as the renderer samples it: the texture's sRGB texels and a mip
-/// pyramid of box-filtered halves (averaged in linear light).
-struct MipTexture {
-    /// (width, height, sRGB RGBA texels) from the full size down to 1 × 1.
-    levels: Vec<(usize, usize, Vec<[u8; 4]>)>,
-    wrap: [TextureWrap; 2],
-}
-
-impl MipTexture {
-    fn new(t: &Texture) -> Self {
-        let (w, h) = (t.width as usize, t.height as usize);
-        let mut levels = vec![(w, h, t.texels.clone())];
-        if t.texels.len() != w * h || w == 0 || h == 0 {
-            levels[0] = (1, 1, vec![[255; 4]]);
-        }
-        loop {
-            let (w, h, px) = &levels[levels.len() - 1];
-            let (w, h) = (*w, *h);
-            if w == 1 && h == 1 {
-                break;
-            }
-            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-            let mut out = Vec::with_capacity(nw * nh);
-            for y in 0..nh {
-                for x in 0..nw {
-                    let mut acc = [0.0f32; 4];
-                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let p = px[(2 * y + dy).min(h - 1) * w + (2 * x + dx).min(w - 1)];
-                        for k in 0..3 {
-                            acc[k] += srgb8_to_linear(p[k]);
-                        }
-                        acc[3] += f32::from(p[3]);
-                    }
-                    out.push([
-                        linear_to_srgb8(acc[0] * 0.25),
-                        linear_to_srgb8(acc[1] * 0.25),
-                        linear_to_srgb8(acc[2] * 0.25),
-                        (acc[3] * 0.25 + 0.5) as u8,
-                    ]);
-                }
-            }
-            levels.push((nw, nh, out));
-        }
-        Self {
-            levels,
-            wrap: t.wrap,
-        }
-    }
-
-    /// Linear RGB at texture coordinates `uv` (glTF convention) on mip level `level` (0 = full
-    /// size; fractional levels blend the two nearest), bilinear within a level.
-    fn sample(&self, uv: [f32; 2], level: f32) -> [f32; 3] {
-        let top = (self.levels.len() - 1) as f32;
-        let level = if level.is_finite() {
-            level.clamp(0.0, top)
-        } else {
-            0.0
-        };
-        let l0 = level.floor() as usize;
-        let f = level - l0 as f32;
-        let a = self.bilinear(l0, uv);
-        if f > 1e-3 && l0 + 1 < self.levels.len() {
-            let b = self.bilinear(l0 + 1, uv);
-            [0, 1, 2].map(|k| a[k] + (b[k] - a[k]) * f)
-        } else {
-            a
-        }
-    }
-
-    fn bilinear(&self, level: usize, uv: [f32; 2]) -> [f32; 3] {
-        let (w, h, px) = &self.levels[level];
-        let (w, h) = (*w, *h);
-        let x = uv[0] * w as f32 - 0.5;
-        let y = uv[1] * h as f32 - 0.5;
-        if !(x.is_finite() && y.is_finite()) {
-            return [1.0; 3];
-        }
-        let (fx, fy) = (x.floor(), y.floor());
-        let (ax, ay) = (x - fx, y - fy);
-        let index = |i: i64, n: usize, mode: TextureWrap| -> usize {
-            let n = n as i64;
-            let i = match mode {
-                TextureWrap::Repeat => i.rem_euclid(n),
-                TextureWrap::Clamp => i.clamp(0, n - 1),
-                TextureWrap::Mirror => {
-                    let m = i.rem_euclid(2 * n);
-                    if m < n {
-                        m
-                    } else {
-                        2 * n - 1 - m
-                    }
-                }
-            };
-            i as usize
-        };
-        let (x0, y0) = (fx as i64, fy as i64);
-        let (i0, i1) = (index(x0, w, self.wrap[0]), index(x0 + 1, w, self.wrap[0]));
-        let (j0, j1) = (index(y0, h, self.wrap[1]), index(y0 + 1, h, self.wrap[1]));
-        let texel = |i: usize, j: usize| px[j * w + i].map(srgb8_to_linear);
-        let (c00, c10, c01, c11) = (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1));
-        [0, 1, 2].map(|k| {
-            let top = c00[k] + (c10[k] - c00[k]) * ax;
-            let bottom = c01[k] + (c11[k] - c01[k]) * ax;
-            top + (bottom - top) * ay
-        })
-    }
-}
-
-/// Per-triangle texture lookups of a scene (empty vectors when nothing is textured).
-#[derive(Default)]
-struct SceneTextures {
-    /// Per triangle: index into `maps`, or `u32::MAX`.
-    id: Vec<u32>,
-    /// Per triangle: the corners' texture coordinates.
-    uv: Vec<[[f32; 2]; 3]>,
-    /// Per triangle: texels (of level 0) per metre on the surface, √(texel area / world area).
-    density: Vec<f32>,
-    maps: Vec<MipTexture>,
-}
-
-/// The instances merged into one mesh, with per-triangle shading data.
-struct Scene {
-    positions: Vec<[f64; 3]>,
-    triangles: Vec<[u32; 3]>,
-    /// Per triangle: the three vertex normals (face normal repeated when none), unit or zero.
-    normals: Vec<[[f32; 3]; 3]>,
-    /// Per triangle: the three vertex albedos.
-    albedo: Vec<[[f32; 3]; 3]>,
-    tex: SceneTextures,
-    /// Per triangle: drawn with the snow material ([`MeshColors::Snow`]).
-    snow: Vec<bool>,
-    lo: [f64; 3],
-    hi: [f64; 3],
-}
-
-fn merge(instances: &[MeshInstance]) -> Scene {
-    let nv: usize = instances.iter().map(|i| i.positions.len()).sum();
-    let nt: usize = instances.iter().map(|i| i.triangles.len()).sum();
-    let mut s = Scene {
-        positions: Vec::with_capacity(nv),
-        triangles: Vec::with_capacity(nt),
-        normals: Vec::with_capacity(nt),
-        albedo: Vec::with_capacity(nt),
-        tex: SceneTextures::default(),
-        snow: Vec::with_capacity(nt),
-        lo: [f64::INFINITY; 3],
-        hi: [f64::NEG_INFINITY; 3],
-    };
-    for inst in instances {
-        let base = s.positions.len() as u32;
-        let n = inst.positions.len();
-        // This instance's textures, if its materials have any it can look up.
-        let tex_base = s.tex.maps.len() as u32;
-        let textured = match inst.colors {
-            MeshColors::Materials(m)
-                if m.has_textures() && m.uvs.as_ref().is_some_and(|u| u.len() == n) =>
-            {
-                s.tex
-                    .maps
-                    .extend(m.textures.iter().map(|t| MipTexture::new(t)));
-                Some(m)
-            }
-            _ => None,
-        };
-        for p in inst.positions {
-            let p = p.map(f64::from);
-            if p.iter().all(|v| v.is_finite()) {
-                s.lo = [0, 1, 2].map(|k| s.lo[k].min(p[k]));
-                s.hi = [0, 1, 2].map(|k| s.hi[k].max(p[k]));
-            }
-            s.positions.push(p);
-        }
-        let mut part = 0usize;
-        for (ti, t) in inst.triangles.iter().enumerate() {
-            if t.iter().any(|&i| i as usize >= n) {
-                continue; // out of range: skipped (the rasteriser would skip it too)
-            }
-            let [a, b, c] = t.map(|i| inst.positions[i as usize]);
-            let face = unit([
-                (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1]),
-                (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2]),
-                (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]),
-            ]);
-            let normals = match inst.normals {
-                Some(ns) if ns.len() == n => t.map(|i| {
-                    let v = unit(ns[i as usize]);
-                    if v == [0.0; 3] {
-                        face
-                    } else {
-                        v
-                    }
-                }),
-                _ => [face; 3],
-            };
-            let albedo = match inst.colors {
-                MeshColors::Uniform(c) | MeshColors::Snow(c) => [c; 3],
-                MeshColors::PerVertex(cs) if cs.len() == n => t.map(|i| cs[i as usize]),
-                MeshColors::PerVertex(_) => [[0.5; 3]; 3],
-                MeshColors::PerPart(parts) => {
-                    // Parts are in triangle order: advance, falling back to a search.
-                    let inside = |p: &MeshPart| {
-                        (p.first_triangle..p.first_triangle + p.triangle_count).contains(&ti)
-                    };
-                    if !parts.get(part).is_some_and(inside) {
-                        part = parts.iter().position(inside).unwrap_or(usize::MAX);
-                    }
-                    let c = parts.get(part).map_or([0.5; 3], |p| {
-                        [p.base_color[0], p.base_color[1], p.base_color[2]]
-                    });
-                    [c; 3]
-                }
-                MeshColors::Materials(m) => {
-                    let inside = |p: &MeshPart| {
-                        (p.first_triangle..p.first_triangle + p.triangle_count).contains(&ti)
-                    };
-                    if !m.parts.get(part).is_some_and(inside) {
-                        part = m.parts.iter().position(inside).unwrap_or(usize::MAX);
-                    }
-                    let c = m.parts.get(part).map_or([0.5; 3], |p| {
-                        [p.base_color[0], p.base_color[1], p.base_color[2]]
-                    });
-                    match m.colors.as_ref().filter(|cs| cs.len() == n) {
-                        Some(cs) => t.map(|i| {
-                            let v = cs[i as usize];
-                            [c[0] * v[0], c[1] * v[1], c[2] * v[2]]
-                        }),
-                        None => [c; 3],
-                    }
-                }
-            };
-            if let Some(m) = textured {
-                let id = m
-                    .parts
-                    .get(part)
-                    .and_then(|p| p.texture)
-                    .filter(|&k| k < m.textures.len());
-                if s.tex.id.len() < s.triangles.len() {
-                    // First textured triangle: the ones before it have none.
-                    s.tex.id.resize(s.triangles.len(), u32::MAX);
-                    s.tex.uv.resize(s.triangles.len(), [[0.0; 2]; 3]);
-                    s.tex.density.resize(s.triangles.len(), 0.0);
-                }
-                let uvs = m.uvs.as_deref().unwrap_or(&[]);
-                let uv = t.map(|i| uvs.get(i as usize).copied().unwrap_or([0.0; 2]));
-                let density = id.map_or(0.0, |k| {
-                    let tx = &m.textures[k];
-                    let (w, h) = (tx.width as f32, tx.height as f32);
-                    let (du, dv) = (
-                        [(uv[1][0] - uv[0][0]) * w, (uv[1][1] - uv[0][1]) * h],
-                        [(uv[2][0] - uv[0][0]) * w, (uv[2][1] - uv[0][1]) * h],
-                    );
-                    let texel_area = 0.5 * (du[0] * dv[1] - du[1] * dv[0]).abs();
-                    let [p0, p1, p2] = t.map(|i| inst.positions[i as usize]);
-                    let world = triangle_area(p0, p1, p2);
-                    if world > 0.0 && texel_area.is_finite() {
-                        (texel_area / world).sqrt()
-                    } else {
-                        0.0
-                    }
-                });
-                s.tex.id.push(id.map_or(u32::MAX, |k| tex_base + k as u32));
-                s.tex.uv.push(uv);
-                s.tex.density.push(density);
-            } else if !s.tex.id.is_empty() {
-                s.tex.id.push(u32::MAX);
-                s.tex.uv.push([[0.0; 2]; 3]);
-                s.tex.density.push(0.0);
-            }
-            s.triangles.push(t.map(|i| base + i));
-            s.normals.push(normals);
-            s.albedo.push(albedo);
-            s.snow.push(matches!(inst.colors, MeshColors::Snow(_)));
-        }
-    }
-    s
-}
-
-/// Area of triangle (a, b, c).
-fn triangle_area(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> f32 {
-    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-    let n = [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ];
-    0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
-}
-
-/// An orthographic depth map along the sun: texel (i, j) holds the largest `dot(p, sun)` of the
-/// scene at its centre (−∞ = empty).
-struct ShadowMap {
-    u: DVec3,
-    v: DVec3,
-    d: DVec3,
-    u0: f64,
-    v0: f64,
-    /// World units per texel.
-    texel: f64,
-    size: usize,
-    depth: Vec<f32>,
-    /// Depths are stored relative to this (f32 precision near the scene).
-    d0: f64,
-    eps: f64,
-}
-
-impl ShadowMap {
-    fn build(s: &Scene, sun: [f64; 3], size: u32, ctl: &dyn Control) -> Result<Self, Canceled> {
-        let d = DVec3::from(sun);
-        let helper = if d.y.abs() < 0.9 { DVec3::Y } else { DVec3::X };
-        let u = normalized(helper.cross(d));
-        let v = d.cross(u);
-        let size = size.clamp(16, 8192) as usize;
-        let (mut u0, mut u1, mut v0, mut v1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        let mut d0 = f64::INFINITY;
-        for p in &s.positions {
-            if p.iter().all(|c| c.is_finite()) {
-                let p = DVec3::from(*p);
-                let (pu, pv) = (p.dot(u), p.dot(v));
-                u0 = u0.min(pu);
-                u1 = u1.max(pu);
-                v0 = v0.min(pv);
-                v1 = v1.max(pv);
-                d0 = d0.min(p.dot(d));
-            }
-        }
-        let extent = (u1 - u0).max(v1 - v0).max(1e-9);
-        let texel = extent * 1.002 / size as f64;
-        let (u0, v0) = (u0 - extent * 0.001, v0 - extent * 0.001);
-        let diag = DVec3::from(s.hi).distance(DVec3::from(s.lo));
-        let mut map = Self {
-            u,
-            v,
-            d,
-            u0,
-            v0,
-            texel,
-            size,
-            depth: vec![f32::NEG_INFINITY; size * size],
-            d0: if d0.is_finite() { d0 } else { 0.0 },
-            eps: 1e-5 * diag.max(1e-9),
-        };
-        // Map-space triangle corners (texel units, depth relative to d0).
-        let to_map = |p: [f64; 3]| -> [f64; 3] {
-            let p = DVec3::from(p);
-            [
-                (p.dot(u) - map.u0) / texel,
-                (p.dot(v) - map.v0) / texel,
-                p.dot(d) - map.d0,
-            ]
-        };
-        let tris: Vec<[[f64; 3]; 3]> = s
-            .triangles
-            .par_iter()
-            .map(|t| t.map(|i| to_map(s.positions[i as usize])))
-            .collect();
-        const ROWS: usize = 64;
-        map.depth
-            .par_chunks_mut(size * ROWS)
-            .enumerate()
-            .try_for_each(|(b, rows)| {
-                ctl.checkpoint()?;
-                let (r0, r1) = (b * ROWS, b * ROWS + rows.len() / size);
-                for t in &tris {
-                    fill_triangle(t, r0, r1, size, rows);
-                }
-                Ok(())
-            })?;
-        Ok(map)
-    }
-
-    /// Fraction of the sun visible at `p` with normal `n` (unit, facing the sun: `ndl > 0`).
-    fn visibility(&self, p: [f64; 3], ndl: f64) -> f32 {
-        let p = DVec3::from(p);
-        let x = (p.dot(self.u) - self.u0) / self.texel - 0.5;
-        let y = (p.dot(self.v) - self.v0) / self.texel - 0.5;
-        let tan = ((1.0 - ndl * ndl).max(0.0).sqrt() / ndl.max(1e-6)).min(8.0);
-        let bias = self.texel * (1.0 + 2.0 * tan) + self.eps;
-        let depth = p.dot(self.d) - self.d0 + bias;
-        let (fx, fy) = (x.floor(), y.floor());
-        let (ax, ay) = ((x - fx) as f32, (y - fy) as f32);
-        let n = self.size as i64;
-        let lit = |i: i64, j: i64| -> f32 {
-            if i < 0 || j < 0 || i >= n || j >= n {
-                return 1.0;
-            }
-            let m = self.depth[j as usize * self.size + i as usize];
-            if f64::from(m) <= depth {
-                1.0
-            } else {
-                0.0
-            }
-        };
-        let (i, j) = (fx as i64, fy as i64);
-        let top = lit(i, j) * (1.0 - ax) + lit(i + 1, j) * ax;
-        let bottom = lit(i, j + 1) * (1.0 - ax) + lit(i + 1, j + 1) * ax;
-        top * (1.0 - ay) + bottom * ay
-    }
-}
-
-/// Rasterise one map-space triangle into rows `r0..r1` (texel centres inside, inclusive edges),
-/// keeping the largest depth.
-fn fill_triangle(t: &[[f64; 3]; 3], r0: usize, r1: usize, size: usize, rows: &mut [f32]) {
-    let [a, b, c] = *t;
-    if !t.iter().flatten().all(|v| v.is_finite()) {
-        return;
-    }
-    let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
-    if area == 0.0 {
-        return;
-    }
-    let ymin = a[1].min(b[1]).min(c[1]);
-    let ymax = a[1].max(b[1]).max(c[1]);
-    let xmin = a[0].min(b[0]).min(c[0]);
-    let xmax = a[0].max(b[0]).max(c[0]);
-    let j0 = ((ymin - 0.5).ceil().max(r0 as f64)) as usize;
-    let j1 = ((ymax - 0.5).floor().min(r1 as f64 - 1.0)).max(-1.0) as i64;
-    let i0 = (xmin - 0.5).ceil().max(0.0) as usize;
-    let i1 = (xmax - 0.5).floor().min(size as f64 - 1.0) as i64;
-    if (j1 as f64) < j0 as f64 || (i1 as f64) < i0 as f64 {
-        return;
-    }
-    let inv = 1.0 / area;
-    for j in j0..=j1 as usize {
-        let py = j as f64 + 0.5;
-        let row = &mut rows[(j - r0) * size..(j - r0 + 1) * size];
-        for (i, out) in row.iter_mut().enumerate().take(i1 as usize + 1).skip(i0) {
-            let px = i as f64 + 0.5;
-            let w0 = ((b[0] - px) * (c[1] - py) - (b[1] - py) * (c[0] - px)) * inv;
-            let w1 = ((c[0] - px) * (a[1] - py) - (c[1] - py) * (a[0] - px)) * inv;
-            let w2 = 1.0 - w0 - w1;
-            if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                let z = (w0 * a[2] + w1 * b[2] + w2 * c[2]) as f32;
-                if z > *out {
-                    *out = z;
-                }
-            }
-        }
-    }
 }
 
 /// The near-plane distance for viewing the box `lo`–`hi` from `eye`: just inside the box as
@@ -856,12 +414,12 @@ impl<'a> MeshRenderer<'a> {
 
     /// Renders the scene into a `width × height` sRGB image (straight alpha) with `overlay`
     /// (same size) composited over each sample. Progress goes to `ctl` under stage `"render"`,
-    /// mapped onto `frac.0..frac.1`.
+    /// mapped onto `progress_span.0..progress_span.1`.
     pub fn render(
         &self,
         overlay: Option<&Overlay>,
         ctl: &dyn Control,
-        frac: (f32, f32),
+        progress_span: (f32, f32),
     ) -> Result<RgbaImage, Canceled> {
         let light = self.light;
         let scene = &self.scene;
@@ -952,7 +510,10 @@ impl<'a> MeshRenderer<'a> {
         let band_done = || {
             let k = done.fetch_add(1, Ordering::Relaxed) + 1;
             let x = (k as f32 / bands as f32).min(1.0);
-            ctl.progress("render", frac.0 + (frac.1 - frac.0) * x);
+            ctl.progress(
+                "render",
+                progress_span.0 + (progress_span.1 - progress_span.0) * x,
+            );
         };
         render_adaptive(&self.raster, light.samples, &shade, ctl, &band_done)
     }
@@ -960,7 +521,7 @@ impl<'a> MeshRenderer<'a> {
 
 /// Render `instances` from `camera` into a `width × height` sRGB image (straight alpha), with
 /// the shading, shadows, fog and background of `light` (see the module doc). Progress goes to
-/// `ctl` under stage `"render"`, mapped onto `frac.0..frac.1`. An empty scene renders the
+/// `ctl` under stage `"render"`, mapped onto `progress_span.0..progress_span.1`. An empty scene renders the
 /// background. Triangles with an out-of-range index are skipped.
 pub fn render_meshes(
     instances: &[MeshInstance],
@@ -969,7 +530,11 @@ pub fn render_meshes(
     width: u32,
     height: u32,
     ctl: &dyn Control,
-    frac: (f32, f32),
+    progress_span: (f32, f32),
 ) -> Result<RgbaImage, Canceled> {
-    MeshRenderer::new(instances, camera, light, width, height, None, ctl)?.render(None, ctl, frac)
+    MeshRenderer::new(instances, camera, light, width, height, None, ctl)?.render(
+        None,
+        ctl,
+        progress_span,
+    )
 }
