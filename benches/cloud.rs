@@ -420,8 +420,32 @@ fn bench_multiple(c: &mut Criterion) {
     g.finish();
 }
 
+/// Decoding each real volume file ([`decode_volume`]: NRRD and OpenVDB, the smoke sample with
+/// and without its temperature grid, the CT skull, the fog bunny).
+fn bench_decode(c: &mut Criterion) {
+    let mut g = c.benchmark_group("volume_decode");
+    g.sample_size(10);
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/volume");
+    for name in [
+        "openvdb_smoke_density.vdb",
+        "openvdb_smoke.vdb",
+        "openvdb_smoke_density.nrrd",
+        "cgal_skull_ct_64.nrrd",
+        "bunny_fog_density.vdb",
+    ] {
+        let Ok(bytes) = std::fs::read(dir.join(name)) else {
+            continue;
+        };
+        g.bench_function(name, |b| {
+            b.iter(|| decode_volume(&bytes, Some(name), &VolumeOptions::default()).unwrap())
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    bench_decode,
     bench_multiple,
     bench_render,
     bench_edits,

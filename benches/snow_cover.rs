@@ -1,5 +1,5 @@
-//! Criterion benches of the `snow-cover` model (issue 4's figures), on the scenes the engine's
-//! `snow_cover::model::timings` test uses (`phenomena_engine::testkit::snow_scenes`, one copy for both).
+//! Criterion benches of the `snow-cover` model (issue 4's figures), on the scenes of
+//! `phenomena_engine::testkit::snow_scenes` (the engine's tests use the same ones).
 //!
 //! - `probability/paper`: the journal's scale, 5,114 triangles, K = 5, 128² maps (target ≤ 5 ms);
 //! - `probability/1m_k64_1024`: 999,890 triangles, K = 64, 1024² maps (target ≤ 1.5 s); about 2 s
@@ -10,19 +10,26 @@
 //! - `baseline/upward_rays_paper_vertices` and `…_cells`: upward ray casting through `obvhs`'s
 //!   CWBVH at the journal's scale, per mesh vertex and per map cell, K = 5 (the honest baseline).
 //!
+//! - `stabilize/table_1024_everywhere`: 1 m of snow everywhere on the 1024² table scene to
+//!   convergence (minutes: the coarse levels treat the table's edge as a wall), only with
+//!   `SNOW_COVER_BENCH_BIG=1`;
+//! - `shape/snow_meshes_512` and `shape/displace_2cm`: the snow meshes of a fully covered 512²
+//!   layer (the default resolution) and a plane displaced by it to 2 cm edges.
+//!
 //! Run: `cargo bench --bench snow_cover` (about a minute on 2 cores after the build).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
 
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use phenomena_engine::snow_cover::snowfall::accumulate_between;
+use phenomena_engine::snow_cover::shape::{displace, snow_meshes, DEFAULT_MIN_DEPTH_M};
+use phenomena_engine::snow_cover::snowfall::{accumulate, accumulate_between};
 use phenomena_engine::snow_cover::{
     build_snow_maps, snow_probability, snowfall_directions, Receiver, Settler, Snowfall,
 };
 use phenomena_engine::testkit::snow_scenes::{
     animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
-    upward_ray_casting,
+    table_scene, upward_ray_casting, SceneBuilder,
 };
 use phenomena_engine::NoControl;
 
@@ -66,6 +73,47 @@ fn stabilize(c: &mut Criterion) {
             },
             criterion::BatchSize::LargeInput,
         )
+    });
+    if std::env::var("SNOW_COVER_BENCH_BIG").as_deref() == Ok("1") {
+        let mesh = table_scene();
+        let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
+        maps.layers[0].probability.iter_mut().for_each(|p| *p = 1.0);
+        accumulate(&mut maps, 1.0);
+        let mut settler = Settler::new(&maps);
+        g.bench_function("table_1024_everywhere", |b| {
+            b.iter_batched_ref(
+                || maps.clone(),
+                |m| settler.stabilize(m, 45.0, 1_000_000, &NoControl).unwrap(),
+                criterion::BatchSize::LargeInput,
+            )
+        });
+    }
+    g.finish();
+}
+
+/// The snow meshes of a fully covered 512² layer (the default resolution) over a waved 10 m
+/// grid, and a 10 m plane of 4 × 4 quads displaced by them to edges of at most 2 cm.
+fn shape(c: &mut Criterion) {
+    let mut g = c.benchmark_group("shape");
+    g.sample_size(10);
+    let mut b = SceneBuilder::default();
+    b.grid([0.0, 10.0], [0.0, 10.0], 64, 64, |x, z| {
+        0.2 * (x * 0.9).sin() * (z * 0.7).cos()
+    });
+    let mut maps = build_snow_maps(&b.build(), 512, &NoControl).unwrap();
+    maps.layers[0]
+        .snow
+        .iter_mut()
+        .enumerate()
+        .for_each(|(c, s)| *s = 100_000 + (c % 7) as u32 * 1000);
+    g.bench_function("snow_meshes_512", |bch| {
+        bch.iter(|| snow_meshes(&maps, DEFAULT_MIN_DEPTH_M))
+    });
+    let mut p = SceneBuilder::default();
+    p.grid([0.0, 10.0], [0.0, 10.0], 4, 4, |_, _| 0.0);
+    let plane = p.build();
+    g.bench_function("displace_2cm", |bch| {
+        bch.iter(|| displace(&plane, &maps, Some(0.02)))
     });
     g.finish();
 }
@@ -120,5 +168,5 @@ fn baseline(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, probability, stabilize, animation, baseline);
+criterion_group!(benches, probability, stabilize, shape, animation, baseline);
 criterion_main!(benches);

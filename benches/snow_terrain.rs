@@ -4,6 +4,9 @@
 //! The paper's case crops it to 400 × 200; the N² cases (N = 1024…8192) tile it by mirroring
 //! (so the terrain stays continuous across the seams), because no real DEM we ship is that large.
 //!
+//! Group `terrain_render` times the terrain renderer's two paths (`render::terrain`, "Two
+//! paths") on the paper's case and across the crossover, and the pyramid of a 4096² DEM.
+//!
 //! Run: `cargo bench --bench snow_terrain` (a few minutes on 2 cores). `SNOW_BENCH_8192=0` skips
 //! the 8192² descriptor and descriptor + render (needs ~3.5 GB).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
@@ -16,8 +19,12 @@ use phenomena_engine::formats::dem::{decode_dem, DemOptions};
 use phenomena_engine::formats::geotiff_write::write_float32_geotiff;
 use phenomena_engine::formats::glb::terrain_glb;
 use phenomena_engine::formats::png_write::encode_rgba;
-use phenomena_engine::geom::Dem;
+use phenomena_engine::geom::camera::Camera;
+use phenomena_engine::geom::{sun_direction, Dem};
 use phenomena_engine::params::Limits;
+use phenomena_engine::render::terrain::{
+    render_accel_on_path, Lighting, RenderPath, TerrainAccel, TerrainScene,
+};
 use phenomena_engine::snow_terrain::altitude::apply_altitude;
 use phenomena_engine::snow_terrain::color::albedo;
 use phenomena_engine::snow_terrain::descriptor::{compute, DescriptorParams};
@@ -174,8 +181,7 @@ fn stages(c: &mut Criterion) {
     drop((d, color, image, dem, snow));
 
     // Scaling with the number of cells: the descriptor alone, and descriptor + colour + 1080p
-    // render + PNG (the 4096² target's work; `snow_terrain::scaling` in the engine's tests fits
-    // the exponent).
+    // render + PNG (the 4096² target's work; BENCHMARKS.md fits the exponent of t ∝ cells^b).
     let mut sizes = vec![1024, 2048, 4096];
     if std::env::var("SNOW_BENCH_8192").map_or(true, |v| v != "0") {
         sizes.push(8192);
@@ -201,5 +207,105 @@ fn stages(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, stages);
+/// The render scene of `dem` with per-cell `albedo`.
+fn terrain_scene<'a>(dem: &'a Dem, albedo: &'a [[f32; 3]]) -> TerrainScene<'a> {
+    TerrainScene {
+        width: dem.width,
+        height: dem.height,
+        dx: dem.dx,
+        dy: dem.dy,
+        heights: &dem.heights,
+        albedo,
+    }
+}
+
+/// The terrain renderer alone, grey albedo, sun at azimuth 230°, 35° up, an orbit from the
+/// south 30° up: the paper's case (400 × 200 cells) to 900 × 600 on the path `Auto` picks (the
+/// rasteriser), forced through the ray caster, with one sample per pixel and unshaded; the two
+/// paths at 0.25, 1 and 4 cells per pixel (the crossover of "Two paths"); the pyramid of 4096².
+fn render_paths(c: &mut Criterion) {
+    let src = tanzawa();
+    let mut g = c.benchmark_group("terrain_render");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5));
+    let light = Lighting {
+        sun_dir: sun_direction(230.0, 35.0),
+        ..Lighting::default()
+    };
+    let orbit = |scene: &TerrainScene| {
+        let (c, r) = scene.bounding_sphere();
+        Camera::orbit(c, 180.0, 30.0, Camera::auto_distance(r, 35.0) * 0.75, 35.0)
+    };
+    let paper = mirrored(&src, 400, 200);
+    let grey = vec![[0.6f32; 3]; paper.heights.len()];
+    let scene = terrain_scene(&paper, &grey);
+    let accel = TerrainAccel::new(&scene);
+    let cam = orbit(&scene);
+    for (name, path, l) in [
+        ("paper_900x600_auto", RenderPath::Auto, light),
+        ("paper_900x600_raycast", RenderPath::RayCast, light),
+        (
+            "paper_900x600_auto_1spp",
+            RenderPath::Auto,
+            Lighting {
+                samples: 1,
+                ..light
+            },
+        ),
+        (
+            "paper_900x600_auto_unshaded",
+            RenderPath::Auto,
+            Lighting {
+                shading: false,
+                ..light
+            },
+        ),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                render_accel_on_path(&accel, &cam, &l, 900, 600, path, &NoControl, (0.0, 1.0))
+                    .expect("not canceled")
+            })
+        });
+    }
+    for ratio in [0.25f64, 1.0, 4.0] {
+        // cells ≈ ratio × 540,000 with the paper's 2:1 aspect.
+        let nh = ((ratio * 540_000.0 / 2.0).sqrt()) as usize + 1;
+        let dem = mirrored(&src, 2 * nh, nh);
+        let grey = vec![[0.6f32; 3]; dem.heights.len()];
+        let scene = terrain_scene(&dem, &grey);
+        let accel = TerrainAccel::new(&scene);
+        let cam = orbit(&scene);
+        for path in [RenderPath::RayCast, RenderPath::Raster] {
+            g.bench_with_input(
+                BenchmarkId::new(format!("crossover_{path:?}"), ratio),
+                &ratio,
+                |b, _| {
+                    b.iter(|| {
+                        render_accel_on_path(
+                            &accel,
+                            &cam,
+                            &light,
+                            900,
+                            600,
+                            path,
+                            &NoControl,
+                            (0.0, 1.0),
+                        )
+                        .expect("not canceled")
+                    })
+                },
+            );
+        }
+    }
+    let big = mirrored(&src, 4096, 4096);
+    let scene = terrain_scene(&big, &[]);
+    g.bench_function("pyramid_4096", |b| {
+        b.iter(|| TerrainAccel::new_geometry(&scene))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, stages, render_paths);
 criterion_main!(benches);

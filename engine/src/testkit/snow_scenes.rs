@@ -186,6 +186,14 @@ pub fn animation_scene() -> Mesh {
     b.build()
 }
 
+/// Floor 10 × 10 m and a 1 m high table, top [3, 7]².
+pub fn table_scene() -> Mesh {
+    let mut b = SceneBuilder::default();
+    b.floor(10.0);
+    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
+    b.build()
+}
+
 /// A 10.24 m square floor (one quad): with a 1024² map, 1 cm cells.
 pub fn pile_plane() -> Mesh {
     let mut b = SceneBuilder::default();

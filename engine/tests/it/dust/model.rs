@@ -570,58 +570,6 @@ fn golden_fiber_texture() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Timings in the test profile (opt-level 2), for when the release bench cannot be built. Run with
-// `cargo test -p phenomena-engine --test it dust::model::timings -- --ignored --nocapture`
-// (the criterion bench is `cargo bench --bench dust`).
-
-fn best_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> f64 {
-    (0..runs)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            std::hint::black_box(f());
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::INFINITY, f64::min)
-}
-
-#[test]
-#[ignore]
-fn timings() {
-    println!("rayon threads: {}", rayon::current_num_threads());
-    let noise = TileableNoise::new(1, 4.0, 5);
-    let t_noise = best_ms(3, || noise.texture(1024, 1024));
-    let field = noise.texture(1024, 1024);
-    let p = FiberParams::default();
-    let t_fib = best_ms(5, || fiber_texture(&p, &field, 1024, 1024, 1, 0, 20_000));
-    println!("noise 1024²: {t_noise:.1} ms; fibres 1024², 20,000 × 48 steps: {t_fib:.1} ms");
-    // ≥ 100,000 vertices: copies of the box-on-floor scene side by side.
-    let one = box_on_floor();
-    let mut m = Mesh::default();
-    let mut c = 0;
-    while m.positions.len() < 100_000 {
-        let base = m.positions.len() as u32;
-        let off = [(c % 8) as f32 * 4.5, 0.0, (c / 8) as f32 * 4.5];
-        m.positions.extend(
-            one.positions
-                .iter()
-                .map(|q| [q[0] + off[0], q[1], q[2] + off[2]]),
-        );
-        m.triangles.extend(
-            one.triangles
-                .iter()
-                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
-        );
-        c += 1;
-    }
-    let t_exp = best_ms(3, || dust_amount(&m, &AmountModel::default()));
-    println!(
-        "dust amount with exposure, {} vertices, {} triangles, 64 rays: {t_exp:.0} ms",
-        m.positions.len(),
-        m.triangles.len()
-    );
-}
-
-// ---------------------------------------------------------------------------------------------
 // The noise field on a coarse grid, the surface, the mapping and the texture pyramid
 
 #[test]

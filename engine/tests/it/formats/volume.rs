@@ -763,33 +763,3 @@ fn vdb_version_and_sniffing() {
         InputError::Corrupt { .. }
     ));
 }
-
-// ---- timings -------------------------------------------------------------------------------------
-
-/// Decode time of each real file. Run with
-/// `cargo test --release -p phenomena-engine --test it formats::volume::decode_timings -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn decode_timings() {
-    for name in [
-        "openvdb_smoke_density.vdb",
-        "openvdb_smoke.vdb",
-        "openvdb_smoke_density.nrrd",
-        "cgal_skull_ct_64.nrrd",
-        "bunny_fog_density.vdb",
-    ] {
-        // VOLUME_TIMING_FILE=<name> times one file (for `perf stat -e instructions` per file).
-        if std::env::var("VOLUME_TIMING_FILE").is_ok_and(|f| f != name) {
-            continue;
-        }
-        let Some(b) = data(name) else { continue };
-        let _ = decode(b, Some(name)).unwrap();
-        let runs = 10;
-        let t = std::time::Instant::now();
-        for _ in 0..runs {
-            std::hint::black_box(decode(b, Some(name)).unwrap());
-        }
-        let ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(runs);
-        println!("{name}: {ms:.1} ms per decode ({} bytes)", b.len());
-    }
-}

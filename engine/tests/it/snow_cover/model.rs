@@ -17,8 +17,7 @@ use std::time::Instant;
 // Scene builders
 
 use phenomena_engine::testkit::snow_scenes::{
-    animation_scene, map_points, million_scene, obvhs_scene, paper_scene, pile_plane, put_pile,
-    upward_ray_casting, SceneBuilder as Builder,
+    map_points, obvhs_scene, table_scene, upward_ray_casting, SceneBuilder as Builder,
 };
 
 /// Floor 10 × 10 m at y = 0 and a closed box roof [3, 7]² from y = 2 to 2.2 (floating).
@@ -26,14 +25,6 @@ fn roof_scene() -> Mesh {
     let mut b = Builder::default();
     b.floor(10.0);
     b.cuboid([3.0, 2.0, 3.0], [7.0, 2.2, 7.0]);
-    b.build()
-}
-
-/// Floor 10 × 10 m and a 1 m high table, top [3, 7]².
-fn table_scene() -> Mesh {
-    let mut b = Builder::default();
-    b.floor(10.0);
-    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
     b.build()
 }
 
@@ -619,139 +610,8 @@ fn cancellation_stops_the_run() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Timings (issue targets; run with
-// `cargo test --release -p phenomena-engine --test it snow_cover::model::timings -- --ignored --nocapture`)
-
-/// A bumpy grid of `n × m` quads over 10 × 10 m plus `boxes` boxes.
-fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut best = f64::MAX;
-    let mut out = None;
-    for _ in 0..n {
-        let t0 = Instant::now();
-        let r = f();
-        best = best.min(t0.elapsed().as_secs_f64() * 1e3);
-        out = Some(r);
-    }
-    (best, out.unwrap())
-}
-
-#[test]
-#[ignore]
-fn timings() {
-    println!("rayon threads: {}", rayon::current_num_threads());
-
-    // Paper scale: 5,114 triangles, K = 5, 128² maps.
-    let mesh = paper_scene();
-    assert_eq!(mesh.triangles.len(), 5114);
-    let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
-    let dirs = snowfall_directions(5, 10.0, None, 1);
-    let (t, _) = best_of(20, || {
-        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-    });
-    println!(
-        "probability 5,114 tris, K=5, 128² ({} layers): {t:.2} ms (target ≤ 5)",
-        maps.layers.len()
-    );
-
-    // 1M triangles, K = 64, 1024².
-    let mesh = million_scene();
-    let (t, mut maps) = best_of(1, || build_snow_maps(&mesh, 1024, &NoControl).unwrap());
-    println!(
-        "regions {} tris, 1024² ({} layers): {t:.0} ms",
-        mesh.triangles.len(),
-        maps.layers.len()
-    );
-    let dirs = snowfall_directions(64, 10.0, None, 1);
-    let (t, _) = best_of(2, || {
-        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-    });
-    println!(
-        "probability {} tris, K=64, 1024²: {t:.0} ms (target ≤ 1500)",
-        mesh.triangles.len()
-    );
-
-    // A 1 m pile on a 1024² map stabilized to convergence: 1 m of snow on a 1 m disc in the middle
-    // of a 10.24 m plane (cell 1 cm), and 1 m everywhere on a table scene.
-    let plane = pile_plane();
-    let mut maps = build_snow_maps(&plane, 1024, &NoControl).unwrap();
-    put_pile(&mut maps);
-    let (t, rep) = best_of(1, || {
-        stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
-    });
-    println!("stabilize 1024², 1 m pile (disc r = 0.5 m): {t:.0} ms, {rep:?} (target ≤ 500)");
-
-    // Animation: 12,646 triangles, two 200² maps, steps of accumulate + stabilize.
-    let mesh = animation_scene();
-    assert_eq!(mesh.triangles.len(), 12_646);
-    let p = ModelParams {
-        resolution: 200,
-        directions: 32,
-        steps: 300,
-        duration_h: 12.0,
-        snowfall: Snowfall::Constant(0.05),
-        max_stabilize_iterations: 500,
-        ..ModelParams::default()
-    };
-    let (_, rep) = simulate(&mesh, &p, &NoControl, |_, _| {}).unwrap();
-    let snowfall_ms = rep.timings.iter().find(|t| t.0 == "snowfall").unwrap().1;
-    println!(
-        "animation 12,646 tris, 200² × {} layers: {} steps in {snowfall_ms:.0} ms = {:.0} steps/s \
-         (target ≥ 100); {} stabilize iterations, {} unconverged; timings {:?}",
-        2,
-        p.steps,
-        p.steps as f64 / snowfall_ms * 1e3,
-        rep.stabilize_iterations,
-        rep.unconverged_steps,
-        rep.timings
-    );
-}
-
-/// Only the 1 M-triangle probability, for profilers: `SNOW_COVER_K` directions (default 64),
-/// `SNOW_COVER_REPS` repetitions (default 1). E.g. instruction counts on one thread:
-/// `RAYON_NUM_THREADS=1 SNOW_COVER_K=2 valgrind --tool=callgrind <it binary> --ignored --exact
-/// snow_cover::model::probability_million`.
-#[test]
-#[ignore]
-fn probability_million() {
-    let env = |k: &str, d: usize| {
-        std::env::var(k)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(d)
-    };
-    let (k, reps) = (env("SNOW_COVER_K", 64), env("SNOW_COVER_REPS", 1));
-    let mesh = million_scene();
-    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
-    let dirs = snowfall_directions(k, 10.0, None, 1);
-    let (t, _) = best_of(reps, || {
-        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-    });
-    let sum: f64 = maps.layers[0]
-        .probability
-        .iter()
-        .map(|&p| f64::from(p))
-        .sum();
-    println!(
-        "probability {} tris, K={k}, 1024²: {t:.0} ms (P sum {sum})",
-        mesh.triangles.len()
-    );
-}
-
-/// 1 m of snow everywhere on a 1024² table scene, stabilized to convergence: minutes (the coarse
-/// levels treat the table's edge as a wall; session 2's note), so not part of `timings`:
-/// `cargo test --release -p phenomena-engine --test it -- --ignored --nocapture --exact snow_cover::model::stabilize_table_scene_everywhere`.
-#[test]
-#[ignore]
-fn stabilize_table_scene_everywhere() {
-    let mesh = table_scene();
-    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
-    maps.layers[0].probability.iter_mut().for_each(|p| *p = 1.0);
-    accumulate(&mut maps, 1.0);
-    let (t, rep) = best_of(1, || {
-        stabilize(&mut maps.clone(), 45.0, 1_000_000, &NoControl).unwrap()
-    });
-    println!("stabilize 1024² table scene, 1 m everywhere: {t:.0} ms, {rep:?}");
-}
+// The settler's Jacobi budget, by hand (iterations and times per budget; the issue targets'
+// timings are `cargo bench --bench snow_cover`)
 
 #[test]
 #[ignore]
@@ -798,73 +658,9 @@ fn settle_experiment() {
     }
 }
 
-#[test]
-#[ignore]
-fn probability_experiment() {
-    use phenomena_engine::snow_cover::shadow::ShadowMap;
-    let mesh = million_scene();
-    let maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
-    let bounds = mesh.bounds().unwrap();
-    let mut sm = ShadowMap::default();
-    for d in snowfall_directions(4, 10.0, None, 1) {
-        let t0 = Instant::now();
-        sm.render(&mesh, d, bounds, maps.cell);
-        println!(
-            "render {}x{}: {:.1} ms",
-            sm.width,
-            sm.height,
-            t0.elapsed().as_secs_f64() * 1e3
-        );
-    }
-    let mut m = maps.clone();
-    for k in [1usize, 2, 8] {
-        let dirs = snowfall_directions(k, 10.0, None, 1);
-        let t0 = Instant::now();
-        snow_probability(&mesh, &mut m, &dirs, None, Receiver::Base, &NoControl).unwrap();
-        println!(
-            "probability K={k}: {:.1} ms",
-            t0.elapsed().as_secs_f64() * 1e3
-        );
-    }
-}
-
-#[test]
-#[ignore]
-fn animation_timing() {
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], 203, 31, |x, z| {
-        0.02 * (x * 3.0).sin() * z.cos()
-    });
-    b.table([3.0, 7.0], [3.0, 7.0], 1.0);
-    let mesh = b.build();
-    assert_eq!(mesh.triangles.len(), 12_646);
-    let p = ModelParams {
-        resolution: 200,
-        directions: 32,
-        steps: 300,
-        snowfall: Snowfall::Constant(0.05),
-        max_stabilize_iterations: 500,
-        ..ModelParams::default()
-    };
-    let (maps, rep) = simulate(&mesh, &p, &NoControl, |_, _| {}).unwrap();
-    animation_variants(&mesh, &p);
-    let ms = rep.timings.iter().find(|t| t.0 == "snowfall").unwrap().1;
-    println!(
-        "animation 12,646 tris, 200² × {} layers: {} steps in {ms:.0} ms = {:.0} steps/s (target ≥ 100); \
-         {} iterations, {} unconverged; {:?}",
-        maps.layers.len(),
-        p.steps,
-        p.steps as f64 / ms * 1e3,
-        rep.stabilize_iterations,
-        rep.unconverged_steps,
-        rep.timings
-    );
-}
-
 // ---------------------------------------------------------------------------------------------
 // The honest baseline (issue 4): upward ray casting through a BVH, K rays per point toward the
-// sky along the same snowfall directions. Run with
-// `cargo test --release -p phenomena-engine --test it snow_cover::model::upward_ray_casting_baseline -- --ignored --nocapture`
+// sky along the same snowfall directions (its timings: `cargo bench --bench snow_cover -- baseline`).
 
 #[test]
 fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_roof() {
@@ -925,66 +721,6 @@ fn upward_ray_casting_agrees_with_the_shadow_maps_on_an_open_plane_and_under_a_r
         agree as f64 >= 0.98 * p.len() as f64,
         "{agree} of {} agree; {msg}",
         p.len()
-    );
-}
-
-#[test]
-#[ignore]
-fn upward_ray_casting_baseline() {
-    println!("rayon threads: {}", rayon::current_num_threads());
-    // The paper's scale: 5,114 triangles, K = 5, 128² maps (same scene as `timings`).
-    let mesh = paper_scene();
-    assert_eq!(mesh.triangles.len(), 5114);
-    let mut maps = build_snow_maps(&mesh, 128, &NoControl).unwrap();
-    let dirs = snowfall_directions(5, 10.0, None, 1);
-    let (t_ours, _) = best_of(20, || {
-        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-    });
-    let (t_build, (bvh, tris)) = best_of(3, || obvhs_scene(&mesh));
-    let eps = 1e-4 * maps.extent;
-    let cells = map_points(&maps, 1);
-    let (t_cells, _) = best_of(3, || upward_ray_casting(&bvh, &tris, &cells, &dirs, eps));
-    let (t_verts, _) = best_of(3, || {
-        upward_ray_casting(&bvh, &tris, &mesh.positions, &dirs, eps)
-    });
-    println!(
-        "5,114 tris, K=5: shadow maps (128², {} receivers) {t_ours:.2} ms; BVH build {t_build:.2} ms; \
-         upward rays per map cell ({} rays) {t_cells:.2} ms = {:.1}× ours; per vertex ({} rays) \
-         {t_verts:.2} ms = {:.1}× ours",
-        cells.len(),
-        cells.len() * dirs.len(),
-        t_cells / t_ours,
-        mesh.positions.len() * dirs.len(),
-        t_verts / t_ours
-    );
-
-    // 1M triangles, K = 64, 1024²: rays for a 1/64 sample of the cells, extrapolated.
-    let mesh = million_scene();
-    let mut maps = build_snow_maps(&mesh, 1024, &NoControl).unwrap();
-    let dirs = snowfall_directions(64, 10.0, None, 1);
-    let (t_ours, _) = best_of(1, || {
-        snow_probability(&mesh, &mut maps, &dirs, None, Receiver::Base, &NoControl)
-    });
-    let (t_build, (bvh, tris)) = best_of(1, || obvhs_scene(&mesh));
-    let eps = 1e-4 * maps.extent;
-    let all = map_points(&maps, 1).len();
-    let sample = map_points(&maps, 64);
-    let (t_sample, _) = best_of(1, || upward_ray_casting(&bvh, &tris, &sample, &dirs, eps));
-    let t_cells = t_sample * all as f64 / sample.len() as f64;
-    let (t_vsample, _) = best_of(1, || {
-        let v: Vec<[f32; 3]> = mesh.positions.iter().step_by(16).copied().collect();
-        upward_ray_casting(&bvh, &tris, &v, &dirs, eps)
-    });
-    let t_verts = t_vsample * 16.0;
-    println!(
-        "{} tris, K=64: shadow maps (1024², {all} receivers) {t_ours:.0} ms; BVH build {t_build:.0} ms; \
-         upward rays per map cell (extrapolated from {} cells) {t_cells:.0} ms = {:.1}× ours; \
-         per vertex ({} vertices, extrapolated from 1/16) {t_verts:.0} ms = {:.1}× ours",
-        mesh.triangles.len(),
-        sample.len(),
-        t_cells / t_ours,
-        mesh.positions.len(),
-        t_verts / t_ours
     );
 }
 
@@ -1068,53 +804,6 @@ fn coarse_to_fine_stabilization_keeps_repose_mass_and_determinism() {
             .iter()
             .fold((f64::MAX, 0f64), |(lo, hi), &v| (lo.min(v), hi.max(v)));
         assert!(hi - lo <= 0.02 * top, "d {d}: arms {arms:?}, top {top}");
-    }
-}
-
-/// The animation loop of `simulate` with settler variants (Jacobi budget, coarse level, threads).
-fn animation_variants(mesh: &Mesh, p: &ModelParams) {
-    use phenomena_engine::snow_cover::snowfall::accumulate_between;
-    use phenomena_engine::snow_cover::Settler;
-    let mut maps0 = build_snow_maps(mesh, p.resolution, &NoControl).unwrap();
-    let dirs = snowfall_directions(p.directions, p.spread_deg, p.wind, p.seed);
-    snow_probability(mesh, &mut maps0, &dirs, None, Receiver::Base, &NoControl).unwrap();
-    for (jacobi, coarse, threads) in [(16, usize::MAX, 2), (0, usize::MAX, 2), (16, usize::MAX, 1)]
-    {
-        let mut maps = maps0.clone();
-        let mut s = Settler::new(&maps);
-        s.jacobi_iterations = jacobi;
-        s.coarse_min_side = coarse;
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let t0 = Instant::now();
-        let mut iterations = 0;
-        pool.install(|| {
-            for n in 1..=p.steps {
-                let c = |n: usize| {
-                    p.snowfall
-                        .cumulative(p.duration_h * n as f64 / p.steps as f64)
-                };
-                accumulate_between(&mut maps, c(n - 1), c(n));
-                let r = s
-                    .stabilize(
-                        &mut maps,
-                        p.repose_angle_deg,
-                        p.max_stabilize_iterations,
-                        &NoControl,
-                    )
-                    .unwrap();
-                iterations += r.iterations;
-            }
-        });
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        println!(
-            "  jacobi {jacobi}, coarse_min_side {coarse}, {threads} threads: {:.0} steps/s, \
-             {iterations} iterations, worst slope excess {}",
-            p.steps as f64 / ms * 1e3,
-            worst_slope_excess(&maps, p.repose_angle_deg)
-        );
     }
 }
 

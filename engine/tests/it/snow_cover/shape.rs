@@ -646,39 +646,6 @@ fn flake_texture_is_deterministic_and_tileable() {
     assert!((0..n).any(|y| alpha(0, y) > 0.0));
 }
 
-/// Timing at the default resolution (512², one layer fully covered); run with `--ignored`.
-#[test]
-#[ignore]
-fn snow_mesh_timing_at_512() {
-    let mut b = Builder::default();
-    b.grid([0.0, 10.0], [0.0, 10.0], 64, 64, |x, z| {
-        0.2 * (x * 0.9).sin() * (z * 0.7).cos()
-    });
-    let mut maps = build_snow_maps(&b.build(), 512, &NoControl).unwrap();
-    maps.layers[0]
-        .snow
-        .iter_mut()
-        .enumerate()
-        .for_each(|(c, s)| *s = 100_000 + (c % 7) as u32 * 1000);
-    let t = std::time::Instant::now();
-    let meshes = snow_meshes(&maps, DEFAULT_MIN_DEPTH_M);
-    eprintln!(
-        "512²: {} meshes, {} vertices, {} triangles in {:?}",
-        meshes.len(),
-        meshes.iter().map(|m| m.positions.len()).sum::<usize>(),
-        meshes.iter().map(|m| m.triangles.len()).sum::<usize>(),
-        t.elapsed()
-    );
-    let mesh = plane(4);
-    let t = std::time::Instant::now();
-    let out = displace(&mesh, &maps, Some(0.02));
-    eprintln!(
-        "displace to 2 cm: {} triangles in {:?}",
-        out.triangles.len(),
-        t.elapsed()
-    );
-}
-
 /// Sparse flakes respect occlusion (issue 18; workshop §2.1(4)): the point probability of a wall
 /// under a 1 m eave is far below that of the same wall in the open, which the directions
 /// leaning toward it reach; a roof top in the open gets 1.

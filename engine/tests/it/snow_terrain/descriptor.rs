@@ -1,5 +1,5 @@
 //! Surface descriptor (SPEC §1 steps 1–6) end to end: real DEMs, determinism, progress and
-//! cancellation, and a hand-run timing of the stages on a 4096² fractal terrain.
+//! cancellation (the stages' timings are `benches/snow_terrain.rs`).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
 
 use std::path::PathBuf;
@@ -385,79 +385,4 @@ fn write_gray(path: &std::path::Path, w: usize, h: usize, pixels: &[u8]) {
         .expect("header")
         .write_image_data(pixels)
         .expect("data");
-}
-
-/// Deterministic fractal (fBm of hashed value noise) terrain, `n × n`, 30 m cells, ~2 km relief.
-fn fractal(n: usize) -> Dem {
-    use rayon::prelude::*;
-    fn hash(x: i64, y: i64, o: u64) -> f64 {
-        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-            ^ o.wrapping_mul(0x1656_67B1_9E37_79F9);
-        h ^= h >> 31;
-        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        h ^= h >> 29;
-        (h >> 11) as f64 / (1u64 << 53) as f64
-    }
-    let mut heights = vec![0.0f32; n * n];
-    heights.par_chunks_mut(n).enumerate().for_each(|(r, row)| {
-        for (c, v) in row.iter_mut().enumerate() {
-            let (mut amp, mut freq, mut sum) = (1000.0, 1.0 / 512.0, 0.0);
-            for o in 0..9u64 {
-                let (x, y) = (c as f64 * freq, r as f64 * freq);
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = (x - x0, y - y0);
-                let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
-                let (i, j) = (x0 as i64, y0 as i64);
-                let a = hash(i, j, o) + (hash(i + 1, j, o) - hash(i, j, o)) * sx;
-                let b = hash(i, j + 1, o) + (hash(i + 1, j + 1, o) - hash(i, j + 1, o)) * sx;
-                sum += amp * (a + (b - a) * sy);
-                amp *= 0.5;
-                freq *= 2.0;
-            }
-            *v = sum as f32;
-        }
-    });
-    Dem {
-        width: n,
-        height: n,
-        heights,
-        dx: 30.0,
-        dy: 30.0,
-        georef: GeoRef::default(),
-    }
-}
-
-/// Stage timings on a 4096² fractal terrain; run by hand in release:
-/// `cargo test --release -p phenomena-engine -- --ignored --nocapture descriptor_4096`.
-#[test]
-#[ignore = "timing; run by hand in release"]
-fn descriptor_4096() {
-    let t0 = std::time::Instant::now();
-    let dem = fractal(4096);
-    println!(
-        "rayon threads: {}, terrain generated in {:.0} ms",
-        rayon::current_num_threads(),
-        t0.elapsed().as_secs_f64() * 1e3
-    );
-    for window in [1, 2] {
-        let p = DescriptorParams {
-            tsa_window: window,
-            ..DescriptorParams::default()
-        };
-        for _ in 0..2 {
-            let t0 = std::time::Instant::now();
-            let d = run(&dem, &p);
-            let total = t0.elapsed().as_secs_f64() * 1e3;
-            let stages: Vec<String> = d
-                .timings
-                .iter()
-                .map(|(s, ms)| format!("{s} {ms:.0} ms"))
-                .collect();
-            println!(
-                "4096², tsa_window {window}: {} | total {total:.0} ms",
-                stages.join(", ")
-            );
-        }
-    }
 }

@@ -209,7 +209,9 @@ fn explicit_exaggeration_and_the_paper_preset_turn_the_rule_off() {
     let p = params(base);
     let again = params(serde_json::to_value(&p).unwrap());
     assert_eq!(p, again);
-    assert!(SnowTerrainParams::from_json(&json!({"preset": "pretty"}), &Limits::default()).is_err());
+    assert!(
+        SnowTerrainParams::from_json(&json!({"preset": "pretty"}), &Limits::default()).is_err()
+    );
 }
 
 /// Ambient occlusion darkens hollows: on the Tanzawa DEM the mean terrain luminance with AO is

@@ -498,8 +498,11 @@ fn golden_winter_descriptors() {
         ),
     ] {
         let dem = load(&shared(file));
-        let p =
-            SnowTerrainParams::from_json(&json!({"outputs": ["descriptor.png"]}), &Limits::default()).unwrap();
+        let p = SnowTerrainParams::from_json(
+            &json!({"outputs": ["descriptor.png"]}),
+            &Limits::default(),
+        )
+        .unwrap();
         let outs = run(&dem, &p, &NoControl).unwrap();
         assert_golden(
             "snow-terrain",
@@ -554,7 +557,8 @@ fn golden_winter_renders() {
 #[test]
 fn explicit_values_override_the_preset() {
     let l = Limits::default();
-    let p = SnowTerrainParams::from_json(&json!({"preset": "paper", "swept_snow": 0.5}), &l).unwrap();
+    let p =
+        SnowTerrainParams::from_json(&json!({"preset": "paper", "swept_snow": 0.5}), &l).unwrap();
     assert_eq!(p.descriptor.swept_snow, 0.5);
     assert_eq!(p.descriptor.snowline, Some(0.0));
     let p = SnowTerrainParams::from_json(&json!({"snowline": 2500}), &l).unwrap();
