@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::range;
+use super::wire::range;
 use crate::geom::camera::Camera;
 use crate::ParamError;
 

@@ -6,7 +6,8 @@
 
 use serde::Serialize;
 
-use super::{camera_spec, image_size, range, CameraSpec, Limits, OrbitDefaults, WireCamera};
+use super::camera::{camera_spec, CameraSpec, OrbitDefaults, WireCamera};
+use super::wire::{image_size, range, Limits};
 use crate::geom::camera::Camera;
 use crate::geom::mesh::UpAxis;
 use crate::geom::Mesh;

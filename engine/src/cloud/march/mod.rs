@@ -33,8 +33,6 @@ use crate::{Canceled, Control};
 mod prepare;
 mod ray;
 
-use ray::{clip_box, GridRay};
-
 /// The march stops when the view transmittance falls below this.
 pub const MIN_TRANSMITTANCE: f32 = 1e-3;
 
@@ -127,86 +125,6 @@ impl Prepared {
         }
         let cos = d[0] * self.sun[0] + d[1] * self.sun[1] + d[2] * self.sun[2];
         ((1.0 - g * g) / (1.0 + g * g - 2.0 * g * cos).powf(1.5)) as f32
-    }
-
-    /// Marches one ray from `o` along unit `d`. No allocation.
-    ///
-    /// The samples are those of the whole box (n equal segments of about `step` voxels between
-    /// the box's entry and exit), but only those inside the box of occupied blocks are visited.
-    pub fn march(&self, o: [f64; 3], d: [f64; 3]) -> PixelSample {
-        let empty = PixelSample {
-            transmittance: 1.0,
-            ..PixelSample::default()
-        };
-        let f = &self.frame;
-        let Some((t0, t1)) = f.clip(o, d) else {
-            return empty;
-        };
-        let Some((lo, hi)) = self.occupied else {
-            return empty;
-        };
-        let Some((ta, tb)) = clip_box(o, d, lo, hi) else {
-            return empty;
-        };
-        let len = t1 - t0;
-        let n = (len / (self.step * f.min_h())).ceil().max(1.0) as usize;
-        let dt = len / n as f64;
-        // Samples i with t0 + (i + ½)·dt in [ta, tb], widened by one.
-        let first = ((ta - t0) / dt - 1.5).max(0.0) as usize;
-        let last = (((tb - t0) / dt + 0.5).max(0.0) as usize + 1).min(n);
-        if first >= last {
-            return empty;
-        }
-        // Padded cell coordinate of world p along k: (p − lo)/h − ½ + 1.
-        let ray = GridRay {
-            origin: std::array::from_fn(|k| ((o[k] + t0 * d[k] - f.lo[k]) / f.h[k] + 0.5) as f32),
-            step: std::array::from_fn(|k| (dt * d[k] / f.h[k]) as f32),
-            inv_step: std::array::from_fn(|k| (f.h[k] / (dt * d[k])) as f32),
-            max: std::array::from_fn(|k| f.dims[k] as f32 + 0.999),
-        };
-        let span = first..last;
-        let dtf = dt as f32;
-        let uniform = |c: &[f32], wgt: f32, amb: &mut [f32; 3]| {
-            for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
-                *m += wgt * c[0] * u;
-            }
-        };
-        let mut out = match &self.sources {
-            Sources::Uniform(s) => {
-                self.integrate::<2, false>(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb))
-            }
-            Sources::Field(s) => self.integrate::<5, false>(s, &ray, span, dtf, |c, wgt, amb| {
-                for (m, x) in amb.iter_mut().zip(&c[2..5]) {
-                    *m += wgt * x;
-                }
-            }),
-            Sources::UniformMs(s) => {
-                self.integrate::<3, true>(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb))
-            }
-            Sources::FieldMs(s) => self.integrate::<6, true>(s, &ray, span, dtf, |c, wgt, amb| {
-                for (m, x) in amb.iter_mut().zip(&c[3..6]) {
-                    *m += wgt * x;
-                }
-            }),
-        };
-        out.direct *= self.phase(d);
-        if self.albedo != 1.0 {
-            out.direct *= self.albedo;
-        }
-        out
-    }
-
-    /// Marches the ray through the centre of pixel (`x`, `y`) of a `width × height` view.
-    pub fn march_pixel(
-        &self,
-        camera: &Camera,
-        width: u32,
-        height: u32,
-        x: u32,
-        y: u32,
-    ) -> PixelSample {
-        let rg = camera.ray_gen(width, height);
-        self.march(rg.eye, rg.dir(f64::from(x) + 0.5, f64::from(y) + 0.5))
     }
 }
 

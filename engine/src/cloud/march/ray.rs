@@ -1,14 +1,15 @@
-//! The sample loop of the camera-ray march (paper Eqs. 1–3): a ray in padded-cell coordinates,
+//! The camera-ray march of paper Eqs. 1–3 ([`Prepared::march`]): a ray in padded-cell coordinates,
 //! the empty-space leaps and the exact per-segment integration, one loop for the single- and
 //! the multiple-scattering sources.
 
-use super::{MsMarch, PixelSample, Prepared, MIN_TRANSMITTANCE, MS};
+use super::{MsMarch, PixelSample, Prepared, Sources, MIN_TRANSMITTANCE, MS};
 use crate::cloud::fastexp::exp_neg;
 use crate::cloud::skip::BLOCK;
+use crate::geom::camera::Camera;
 
 /// The parameter interval where the ray `o + t·d` is inside the box `[lo, hi]` (t ≥ 0).
 #[inline]
-pub(super) fn clip_box(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+fn clip_box(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
     let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
     for k in 0..3 {
         if d[k] == 0.0 {
@@ -26,7 +27,7 @@ pub(super) fn clip_box(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> 
 }
 
 /// A ray in padded-cell coordinates: sample `i` is at `origin + (i + ½)·step`.
-pub(super) struct GridRay {
+struct GridRay {
     pub origin: [f32; 3],
     pub step: [f32; 3],
     pub inv_step: [f32; 3],
@@ -67,6 +68,86 @@ impl GridRay {
 }
 
 impl Prepared {
+    /// Marches one ray from `o` along unit `d`. No allocation.
+    ///
+    /// The samples are those of the whole box (n equal segments of about `step` voxels between
+    /// the box's entry and exit), but only those inside the box of occupied blocks are visited.
+    pub fn march(&self, o: [f64; 3], d: [f64; 3]) -> PixelSample {
+        let empty = PixelSample {
+            transmittance: 1.0,
+            ..PixelSample::default()
+        };
+        let f = &self.frame;
+        let Some((t0, t1)) = f.clip(o, d) else {
+            return empty;
+        };
+        let Some((lo, hi)) = self.occupied else {
+            return empty;
+        };
+        let Some((ta, tb)) = clip_box(o, d, lo, hi) else {
+            return empty;
+        };
+        let len = t1 - t0;
+        let n = (len / (self.step * f.min_h())).ceil().max(1.0) as usize;
+        let dt = len / n as f64;
+        // Samples i with t0 + (i + ½)·dt in [ta, tb], widened by one.
+        let first = ((ta - t0) / dt - 1.5).max(0.0) as usize;
+        let last = (((tb - t0) / dt + 0.5).max(0.0) as usize + 1).min(n);
+        if first >= last {
+            return empty;
+        }
+        // Padded cell coordinate of world p along k: (p − lo)/h − ½ + 1.
+        let ray = GridRay {
+            origin: std::array::from_fn(|k| ((o[k] + t0 * d[k] - f.lo[k]) / f.h[k] + 0.5) as f32),
+            step: std::array::from_fn(|k| (dt * d[k] / f.h[k]) as f32),
+            inv_step: std::array::from_fn(|k| (f.h[k] / (dt * d[k])) as f32),
+            max: std::array::from_fn(|k| f.dims[k] as f32 + 0.999),
+        };
+        let span = first..last;
+        let dtf = dt as f32;
+        let uniform = |c: &[f32], wgt: f32, amb: &mut [f32; 3]| {
+            for (m, u) in amb.iter_mut().zip(self.ambient_uniform) {
+                *m += wgt * c[0] * u;
+            }
+        };
+        let mut out = match &self.sources {
+            Sources::Uniform(s) => {
+                self.integrate::<2, false>(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb))
+            }
+            Sources::Field(s) => self.integrate::<5, false>(s, &ray, span, dtf, |c, wgt, amb| {
+                for (m, x) in amb.iter_mut().zip(&c[2..5]) {
+                    *m += wgt * x;
+                }
+            }),
+            Sources::UniformMs(s) => {
+                self.integrate::<3, true>(s, &ray, span, dtf, |c, wgt, amb| uniform(c, wgt, amb))
+            }
+            Sources::FieldMs(s) => self.integrate::<6, true>(s, &ray, span, dtf, |c, wgt, amb| {
+                for (m, x) in amb.iter_mut().zip(&c[3..6]) {
+                    *m += wgt * x;
+                }
+            }),
+        };
+        out.direct *= self.phase(d);
+        if self.albedo != 1.0 {
+            out.direct *= self.albedo;
+        }
+        out
+    }
+
+    /// Marches the ray through the centre of pixel (`x`, `y`) of a `width × height` view.
+    pub fn march_pixel(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        x: u32,
+        y: u32,
+    ) -> PixelSample {
+        let rg = camera.ray_gen(width, height);
+        self.march(rg.eye, rg.dir(f64::from(x) + 0.5, f64::from(y) + 0.5))
+    }
+
     /// The sample loop of [`Prepared::march`] over sources of `N` channels (ρ and ρ·T_sun
     /// first); `ambient(c, wgt, acc)` adds a segment's ambient. Returns Ī before the phase, the
     /// multiple part for a unit sun, A and g as a [`PixelSample`].
@@ -76,7 +157,7 @@ impl Prepared {
     /// march stops when both transmittances are below [`MIN_TRANSMITTANCE`]. Without it the
     /// multiple part is 0 and the march stops on the view transmittance alone.
     #[inline]
-    pub(super) fn integrate<const N: usize, const MULTIPLE: bool>(
+    fn integrate<const N: usize, const MULTIPLE: bool>(
         &self,
         src: &[[f32; N]],
         ray: &GridRay,

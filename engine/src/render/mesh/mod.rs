@@ -43,11 +43,12 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use super::adaptive::{render_adaptive, Sample};
 use super::image::RgbaImage;
-use super::raster::{render_adaptive, Fragment, Mesh as RMesh, Projection, Rasterizer, Sample};
+use super::raster::{Fragment, Mesh as RMesh, Projection, Rasterizer};
 use crate::control::{Canceled, Control};
 use crate::geom::camera::Camera;
-use crate::geom::mesh::{Mesh, MeshPart};
+use crate::geom::mesh::Mesh;
 use crate::geom::vec::{normalized, sun_direction, unit, DVec3};
 use crate::params::MeshView;
 
@@ -56,26 +57,8 @@ mod shadow;
 mod texture;
 
 use scene::{merge, Scene};
+pub use scene::{MeshColors, MeshInstance};
 use shadow::ShadowMap;
-
-/// Per-triangle or per-vertex surface colour (albedo, linear RGB 0..1).
-#[derive(Debug, Clone, Copy)]
-pub enum MeshColors<'a> {
-    /// One colour for the whole instance.
-    Uniform([f32; 3]),
-    /// One colour per vertex (same length as `positions`), interpolated.
-    PerVertex(&'a [[f32; 3]]),
-    /// The base colour (RGB) of the part each triangle lies in; triangles outside every part are
-    /// mid grey.
-    PerPart(&'a [MeshPart]),
-    /// The mesh's own materials (the instance's arrays are this mesh's or share its vertex and
-    /// triangle numbering): per part its base colour, times [`Mesh::colors`] per vertex, times
-    /// its texture looked up through [`Mesh::uvs`] (module doc, *Materials*).
-    Materials(&'a Mesh),
-    /// Snow of this albedo, drawn with the snow material ([`snow_irradiance`]): wrapped diffuse
-    /// sun and a cool, stronger sky term, so snow reads as snow on a white model too.
-    Snow([f32; 3]),
-}
 
 /// Wrap of the snow material's diffuse term (light reaches `SNOW_WRAP` past the terminator in
 /// `n·l` units: the softness of light scattered under the surface).
@@ -94,16 +77,6 @@ pub fn snow_irradiance(ndl: f32, n_y: f32) -> (f32, [f32; 3]) {
     let direct = ((ndl + SNOW_WRAP) / (1.0 + SNOW_WRAP)).max(0.0);
     let up = 0.5 + 0.5 * n_y;
     (direct, SNOW_SKY.map(|k| k * up))
-}
-
-/// One triangle mesh of the scene, world space (metres, Y up).
-#[derive(Debug, Clone, Copy)]
-pub struct MeshInstance<'a> {
-    pub positions: &'a [[f32; 3]],
-    /// Per-vertex normals (need not be unit); `None` = flat face normals.
-    pub normals: Option<&'a [[f32; 3]]>,
-    pub triangles: &'a [[u32; 3]],
-    pub colors: MeshColors<'a>,
 }
 
 /// Light, shadows, fog and background of a mesh render.

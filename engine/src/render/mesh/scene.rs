@@ -2,9 +2,37 @@
 //! albedo (materials, vertex colours, snow) and texture lookups (see "Materials" in [`super`]).
 
 use super::texture::MipTexture;
-use super::{MeshColors, MeshInstance};
-use crate::geom::mesh::MeshPart;
+use crate::geom::mesh::{Mesh, MeshPart};
 use crate::geom::vec::{unit, Vec3};
+
+/// Per-triangle or per-vertex surface colour (albedo, linear RGB 0..1).
+#[derive(Debug, Clone, Copy)]
+pub enum MeshColors<'a> {
+    /// One colour for the whole instance.
+    Uniform([f32; 3]),
+    /// One colour per vertex (same length as `positions`), interpolated.
+    PerVertex(&'a [[f32; 3]]),
+    /// The base colour (RGB) of the part each triangle lies in; triangles outside every part are
+    /// mid grey.
+    PerPart(&'a [MeshPart]),
+    /// The mesh's own materials (the instance's arrays are this mesh's or share its vertex and
+    /// triangle numbering): per part its base colour, times [`Mesh::colors`] per vertex, times
+    /// its texture looked up through [`Mesh::uvs`] ([`super`]'s doc, *Materials*).
+    Materials(&'a Mesh),
+    /// Snow of this albedo, drawn with the snow material ([`super::snow_irradiance`]): wrapped diffuse
+    /// sun and a cool, stronger sky term, so snow reads as snow on a white model too.
+    Snow([f32; 3]),
+}
+
+/// One triangle mesh of the scene, world space (metres, Y up).
+#[derive(Debug, Clone, Copy)]
+pub struct MeshInstance<'a> {
+    pub positions: &'a [[f32; 3]],
+    /// Per-vertex normals (need not be unit); `None` = flat face normals.
+    pub normals: Option<&'a [[f32; 3]]>,
+    pub triangles: &'a [[u32; 3]],
+    pub colors: MeshColors<'a>,
+}
 
 /// Per-triangle texture lookups of a scene (empty vectors when nothing is textured).
 #[derive(Default)]

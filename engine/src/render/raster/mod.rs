@@ -20,7 +20,7 @@
 //! triangles and triangles with a non-finite vertex (e.g. a NaN height) are skipped. No back-face
 //! culling (terrain is seen from below at grazing angles too).
 //!
-//! **Anti-aliasing** lives in [`super::adaptive`] ([`render_adaptive`], re-exported here):
+//! **Anti-aliasing** lives in [`super::adaptive`] ([`super::adaptive::render_adaptive`]):
 //! centre samples first, then the pattern samples only at the pixels that need them
 //! ([`Rasterizer::rasterize_masked`]).
 //!
@@ -54,9 +54,9 @@ mod visbuf;
 
 use rayon::prelude::*;
 
-pub use super::adaptive::{render_adaptive, sample_pattern, Sample, ShadeFn};
-pub use projection::Projection;
-use setup::{edges, plane, setup, snap, snap1, PVert, ScreenTri};
+pub use projection::{Projection, MAX_SIDE};
+pub use setup::NO_TRI;
+use setup::{edges, plane, setup, snap, snap1, PVert, ScreenTri, SUB};
 pub use visbuf::{RowMask, VisBuffer};
 
 /// Image rows per band (the unit of parallel work and binning). 32 rows: 19 bands on a 900×600
@@ -64,15 +64,6 @@ pub use visbuf::{RowMask, VisBuffer};
 /// measured slower on the paper case).
 pub const BAND: usize = 32;
 
-/// Fixed-point sub-pixel precision: vertices and sample positions snap to 1/256 pixel.
-const SUB: f64 = 256.0;
-/// Guard band beyond each image edge, pixels. Triangles are clipped to it so fixed-point
-/// coordinates stay below 2^24 (i32) and edge-function products below 2^50 (i64).
-const GUARD: f64 = 16_384.0;
-/// Largest image side accepted by the fixed-point coverage (larger images are clamped).
-pub const MAX_SIDE: u32 = 32_768;
-/// "No triangle" in a visibility buffer.
-pub const NO_TRI: u32 = u32::MAX;
 /// An indexed triangle mesh in world coordinates. Triangles with an out-of-range index or a
 /// non-finite vertex are skipped, and so are triangles past [`MAX_TRIANGLES`] (2^28).
 #[derive(Debug, Clone, Copy)]

@@ -1,8 +1,13 @@
 //! The camera's projection onto the image, shared by the rasteriser's set-up and its callers.
 
-use super::{GUARD, MAX_SIDE};
 use crate::geom::camera::Camera;
 use crate::geom::vec::DVec3;
+
+/// Guard band beyond each image edge, pixels. Triangles are clipped to it so fixed-point
+/// coordinates stay below 2^24 (i32) and edge-function products below 2^50 (i64).
+const GUARD: f64 = 16_384.0;
+/// Largest image side accepted by the fixed-point coverage (larger images are clamped).
+pub const MAX_SIDE: u32 = 32_768;
 
 /// The camera's projection for a `width × height` image: the model of [`Camera::ray_gen`]
 /// (pixel (0, 0) top-left, y down), plus a near plane at view depth `near` (world units, > 0).

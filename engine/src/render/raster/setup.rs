@@ -2,7 +2,12 @@
 //! (Sutherland–Hodgman in camera space, then a fan), snap it to 1/256 pixel and build its integer
 //! edge functions with the top-left fill rule.
 
-use super::{Projection, NO_TRI, SUB};
+use super::projection::Projection;
+
+/// Fixed-point sub-pixel precision: vertices and sample positions snap to 1/256 pixel.
+pub(super) const SUB: f64 = 256.0;
+/// "No triangle" in a visibility buffer.
+pub const NO_TRI: u32 = u32::MAX;
 
 /// A projected, clipped and snapped triangle: vertices in 1/256 pixel, counter-clockwise on
 /// screen in the y-down sense (positive edge functions inside).

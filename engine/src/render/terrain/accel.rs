@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::{height_range, Hit, TerrainScene};
+use super::scene::{height_range, Hit, TerrainScene};
 use crate::geom::vec::{normalized, DVec3};
 
 /// Pyramid level at which rays start (nodes of 2^4 = 16 cells).

@@ -6,9 +6,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
+use super::accel::TerrainAccel;
+use super::ao::{sky_view_factor, AoMap};
 use super::raster_path::{self, render_raster, RasterSetup};
-use super::Lighting;
-use super::{sky_view_factor, AoMap, Px, RenderPath, Shader, TerrainAccel, TerrainScene};
+use super::scene::{Lighting, RenderPath, TerrainScene};
+use super::shade::{Px, Shader};
 use crate::control::{Canceled, Control};
 use crate::geom::camera::Camera;
 use crate::geom::vec::{normalized, DVec3};

@@ -29,7 +29,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::{Hit, Px, Shader, TerrainAccel};
+use super::accel::TerrainAccel;
+use super::scene::Hit;
+use super::shade::{Px, Shader};
 use crate::control::{Canceled, Control};
 use crate::geom::camera::{Camera, RayGen};
 use crate::geom::vec::DVec3;

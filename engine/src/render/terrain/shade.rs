@@ -1,8 +1,9 @@
 //! Shading one sample of the terrain (see "Shadows", "Sky" and "Aerial perspective" in
 //! [`super`]) and the anti-aliasing test of its pixels.
 
+use super::accel::TerrainAccel;
 use super::ao::AoMap;
-use super::{Hit, Lighting, TerrainAccel};
+use super::scene::{Hit, Lighting};
 use crate::geom::vec::DVec3;
 use crate::render::adaptive::{Sample, Shaded};
 

@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::TerrainAccel;
+use super::accel::TerrainAccel;
 use crate::control::{Canceled, Control};
 
 impl TerrainAccel<'_> {
