@@ -12,7 +12,9 @@
 # they are hashed with every key named `timings`, `timings_ms`, `ms` or `total_ms` removed (jq), so their
 # numbers and structure still count. Everything else is hashed as written.
 #
-# scripts/checksums/baseline-457487d.txt is the manifest of main at 457487d (release build).
+# scripts/checksums/baseline-457487d.txt is the manifest of main at 457487d (release build);
+# baseline-1d1b8cf.txt that of main at 1d1b8cf (identical to it: the terrain work between them
+# left every output unchanged).
 #
 # Cases: snow-terrain (default; `paper` preset; an orthophoto; a sea DEM; a sweep sheet),
 # snow-cover (glTF, OBJ, textured glTF), cloud (single and `scattering: multiple`, with layers),
