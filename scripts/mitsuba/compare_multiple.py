@@ -299,6 +299,8 @@ def main():
     # llvm_ad_mono: vectorised and grey (the comparison is grey: sun and albedo are white); it
     # needs libLLVM ≥ 16 (see `llvm_library`), else scalar_rgb.
     ap.add_argument("--variant", default="llvm_ad_mono" if llvm_library() else "scalar_rgb")
+    ap.add_argument("--modes", default="single,multiple",
+                    help="which comparisons to run: single (max_depth 2), multiple (-1)")
     ap.add_argument("--reference-only", action="store_true",
                     help="render and cache the multiple-scattering reference only (needs --kappa)")
     ap.add_argument("--out", default="target/mitsuba")
@@ -357,7 +359,7 @@ def main():
         return
     results = {"volume": name, "dims": dims, "width": a.width, "height": a.height,
                "variant": mi.variant()}
-    for mode in ["single", "multiple"]:
+    for mode in a.modes.split(","):
         p = dict(params, scattering=mode)
         ours, direct, alpha, t_ours = render_ours(a.binary, vol_path, p, out / f"ours_{name}_{mode}")
         # Time the render again (the first run pays for page-ins).

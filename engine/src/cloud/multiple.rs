@@ -307,7 +307,7 @@ pub fn coarsening(dims: [usize; 3], max_cells: usize) -> usize {
 /// Solves for J (module doc). `dims` and `h` (voxel size, world units) are the fine grid's;
 /// `voxel(x, y, z)` gives the fine voxel's `(ρ, ρ·T_sun)` with the unscaled sun transmittance.
 ///
-/// Accuracy of the default (measured, `cloud_multiple::orders_converge_to_the_krylov_solution`
+/// Accuracy of the default (measured, `cloud::multiple::orders_converge_to_the_krylov_solution`
 /// and `…thick_slabs_…`): within 1 % of the converged solution of the discrete equations, thin
 /// or thick; what remains is the discretisation's error (docs/cloud-multiple-scattering.md).
 pub fn solve(
@@ -577,7 +577,10 @@ fn krylov(
     let budget = kr.max_sweeps.max(3) - 1; // the final pass
     while r_norm > goal && sweeps < budget {
         // One GMRES cycle (Arnoldi with modified Gram–Schmidt, Givens rotations).
-        let mut v: Vec<Vec<f32>> = vec![res.iter().map(|r| (f64::from(*r) / r_norm) as f32).collect()];
+        let mut v: Vec<Vec<f32>> = vec![res
+            .iter()
+            .map(|r| (f64::from(*r) / r_norm) as f32)
+            .collect()];
         let mut hess: Vec<Vec<f64>> = Vec::new();
         let (mut cs, mut sn) = (Vec::<f64>::new(), Vec::<f64>::new());
         let mut g = vec![r_norm];

@@ -214,7 +214,10 @@ fn the_reference_solver_knows_its_limits() {
         assert!((balance - 1.0).abs() < 2e-3, "τ₀ {tau0}: balance {balance}");
         let (_, m) = fine.emergent(0.8);
         let (_, m2) = Slab::solve(tau0, n / 2).emergent(0.8);
-        assert!((m - m2).abs() < 1e-3 * m, "τ₀ {tau0}: {m} vs {m2} on half the cells");
+        assert!(
+            (m - m2).abs() < 1e-3 * m,
+            "τ₀ {tau0}: {m} vs {m2} on half the cells"
+        );
     }
     // A thicker slab reflects more (less light gets through to diffuse out of the far face).
     let (_, m10) = Slab::solve(10.0, 500).emergent(0.8);
