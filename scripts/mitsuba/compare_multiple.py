@@ -64,7 +64,24 @@ def ensure_venv():
     os.execv(str(py), [str(py)] + sys.argv)
 
 
+def llvm_library():
+    """Dr.Jit's LLVM back end needs a libLLVM newer than Debian 12's default 14/15 (their
+    instruction selection fails on `fminimum`): `apt-get install libllvm19`. Returns the
+    newest libLLVM-NN.so found with NN ≥ 16, or None (then the scalar variant is used)."""
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return os.environ["DRJIT_LIBLLVM_PATH"]
+    found = []
+    for d in ["/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib"]:
+        for f in Path(d).glob("libLLVM-*.so") if Path(d).exists() else []:
+            ver = f.name[len("libLLVM-"):-len(".so")].split(".")[0]
+            if ver.isdigit() and int(ver) >= 16:
+                found.append((int(ver), str(f)))
+    return max(found)[1] if found else None
+
+
 ensure_venv()
+if llvm_library():
+    os.environ["DRJIT_LIBLLVM_PATH"] = llvm_library()
 
 import numpy as np  # noqa: E402
 
@@ -202,7 +219,7 @@ def mitsuba_scene(mi, dens_zyx, lo, hi, kappa, albedo, g, sun, eye, target, fov,
             "to_world": T().look_at(origin=eye, target=target, up=[0, 1, 0]),
             "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
             "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
-                     "pixel_format": "rgb"},
+                     "pixel_format": "luminance" if "mono" in mi.variant() else "rgb"},
         },
         "sun": {
             "type": "directional",
@@ -219,19 +236,48 @@ def mitsuba_scene(mi, dens_zyx, lo, hi, kappa, albedo, g, sun, eye, target, fov,
 
 
 def render_mitsuba(mi, scene_args, spp, seed, max_depth):
+    """`spp` samples per pixel in passes of at most `PASS_SPP` (the LLVM variant traces all of a
+    pass's paths as one wavefront: memory grows with width × height × spp), each pass with its
+    own seed, averaged. Returns the (h, w) luminance/grey image and the seconds of rendering
+    (scene loading excluded)."""
     args = dict(scene_args)
     scene = mi.load_dict(mitsuba_scene(mi, **args, spp=spp, max_depth=max_depth, seed=seed))
-    t0 = time.perf_counter()
-    img = mi.render(scene, spp=spp, seed=seed)
-    arr = np.array(img)
-    t = time.perf_counter() - t0
-    return arr.mean(axis=2), t
+    total = None
+    done = 0
+    t = 0.0
+    k = 0
+    while done < spp:
+        n = min(PASS_SPP, spp - done)
+        t0 = time.perf_counter()
+        img = np.array(mi.render(scene, spp=n, seed=seed * 100_003 + k))
+        t += time.perf_counter() - t0
+        img = img.mean(axis=2) if img.ndim == 3 else img
+        total = img * n if total is None else total + img * n
+        done += n
+        k += 1
+    return total / spp, t
+
+
+PASS_SPP = 64
 
 
 def ref_tag(name, mode, kappa, a):
     """The cache name of a Mitsuba reference: everything it depends on."""
     return (f"{name}_{mode}_k{kappa:.6g}_a{a.albedo:g}_g{a.g:g}_{a.width}x{a.height}"
             f"_{a.ref_spp}spp")
+
+
+def reference(mi, a, out, name, mode, kappa, scene_args):
+    """Mitsuba's reference at `--ref-spp`, rendered once and cached in `out` (with its time)."""
+    tag = ref_tag(name, mode, kappa, a)
+    ref_path = out / f"ref_{tag}.npy"
+    if ref_path.exists():
+        return np.load(ref_path), json.loads((out / f"ref_{tag}.json").read_text())["seconds"]
+    depth = 2 if mode == "single" else -1
+    ref, t_ref = render_mitsuba(mi, scene_args, a.ref_spp, 1, depth)
+    np.save(ref_path, ref)
+    (out / f"ref_{tag}.json").write_text(json.dumps({"seconds": t_ref, "variant": mi.variant()}))
+    return ref, t_ref
 
 
 def rel_rmse(ours, ref, mask):
@@ -249,10 +295,14 @@ def main():
     ap.add_argument("--kappa", type=float, default=None, help="default: our choice from the volume")
     ap.add_argument("--albedo", type=float, default=1.0)
     ap.add_argument("--g", type=float, default=0.0)
-    ap.add_argument("--ref-spp", type=int, default=512)
-    # llvm_ad_rgb is faster but its JIT crashed on this machine (session 8); scalar_rgb is the
-    # portable default.
-    ap.add_argument("--variant", default="scalar_rgb")
+    ap.add_argument("--ref-spp", type=int, default=4096)
+    # llvm_ad_mono: vectorised and grey (the comparison is grey: sun and albedo are white); it
+    # needs libLLVM ≥ 16 (see `llvm_library`), else scalar_rgb.
+    ap.add_argument("--variant", default="llvm_ad_mono" if llvm_library() else "scalar_rgb")
+    ap.add_argument("--modes", default="single,multiple",
+                    help="which comparisons to run: single (max_depth 2), multiple (-1)")
+    ap.add_argument("--reference-only", action="store_true",
+                    help="render and cache the multiple-scattering reference only (needs --kappa)")
     ap.add_argument("--out", default="target/mitsuba")
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "phenomena"))
     a = ap.parse_args()
@@ -295,26 +345,30 @@ def main():
     }
     if a.kappa is not None:
         params["kappa"] = a.kappa
-    results = {"volume": name, "dims": dims, "width": a.width, "height": a.height}
-    for mode in ["single", "multiple"]:
+
+    def args_for(kappa):
+        return dict(dens_zyx=dens, lo=lo, hi=hi, kappa=kappa, albedo=a.albedo, g=a.g, sun=sun,
+                    eye=eye, target=centre, fov=fov, w=a.width, h=a.height)
+
+    if a.reference_only:
+        if a.kappa is None:
+            sys.exit("--reference-only needs --kappa")
+        ref, t_ref = reference(mi, a, out, name, "multiple", a.kappa, args_for(a.kappa))
+        print(json.dumps({"reference": ref_tag(name, "multiple", a.kappa, a), "seconds": t_ref,
+                          "variant": mi.variant()}))
+        return
+    results = {"volume": name, "dims": dims, "width": a.width, "height": a.height,
+               "variant": mi.variant()}
+    for mode in a.modes.split(","):
         p = dict(params, scattering=mode)
         ours, direct, alpha, t_ours = render_ours(a.binary, vol_path, p, out / f"ours_{name}_{mode}")
         # Time the render again (the first run pays for page-ins).
         ours, direct, alpha, t_ours = render_ours(a.binary, vol_path, p, out / f"ours_{name}_{mode}")
         state = json.loads((out / f"ours_{name}_{mode}" / "state.json").read_text())
         kappa = state["kappa"]
-        scene_args = dict(dens_zyx=dens, lo=lo, hi=hi, kappa=kappa, albedo=a.albedo, g=a.g,
-                          sun=sun, eye=eye, target=centre, fov=fov, w=a.width, h=a.height)
+        scene_args = args_for(kappa)
         depth = 2 if mode == "single" else -1
-        tag = ref_tag(name, mode, kappa, a)
-        ref_path = out / f"ref_{tag}.npy"
-        if ref_path.exists():
-            ref = np.load(ref_path)
-            t_ref = json.loads((out / f"ref_{tag}.json").read_text())["seconds"]
-        else:
-            ref, t_ref = render_mitsuba(mi, scene_args, a.ref_spp, 1, depth)
-            np.save(ref_path, ref)
-            (out / f"ref_{tag}.json").write_text(json.dumps({"seconds": t_ref}))
+        ref, t_ref = reference(mi, a, out, name, mode, kappa, scene_args)
         mask = (alpha > 0.01) | (ref > 1e-3 * ref.max())
         err, scale = rel_rmse(ours, ref, mask)
         # Mitsuba's own noise at the reference's spp, and its error at fewer samples (vs the
