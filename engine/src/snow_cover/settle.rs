@@ -191,6 +191,8 @@ pub struct Settler {
     bands: Vec<(Vec<u32>, u64, u64)>,
     /// The height-ordered sweep's queue ([`heap_key`]s), kept for its allocation.
     order: Vec<u64>,
+    /// The sweep's cells re-queued while it runs (a max-heap; kept for its allocation).
+    requeued: std::collections::BinaryHeap<u64>,
     /// Per cell and layer: in the sweep's queue.
     queued: Vec<bool>,
 }
@@ -219,6 +221,7 @@ impl Settler {
             dirty_next: vec![false; nx * nz],
             bands: vec![(Vec::new(), 0, 0); tz],
             order: Vec::new(),
+            requeued: std::collections::BinaryHeap::new(),
             queued: vec![false; nx * nz * maps.layers.len()],
         }
     }
@@ -449,17 +452,38 @@ impl Settler {
                 }
             }
         }
-        let mut heap = std::collections::BinaryHeap::from(std::mem::take(&mut self.order));
+        // The cells queued at the start are sorted once (in parallel, highest key first); the
+        // cells re-queued during the sweep go to a max-heap, and each visit takes the larger key
+        // of the two. Keys are unique, so this is the same order as one heap holding all of them
+        // (the same result to the unit), without a heap pop per cell.
+        let mut order = std::mem::take(&mut self.order);
+        order.par_sort_unstable_by(|a, b| b.cmp(a));
+        let mut heap = std::mem::take(&mut self.requeued);
+        heap.clear();
+        let mut next = 0usize;
         let mut visits = 0usize;
-        while let Some(key) = heap.pop() {
+        loop {
+            let key = match (order.get(next), heap.peek()) {
+                (Some(&a), Some(&b)) if a > b => {
+                    next += 1;
+                    a
+                }
+                (Some(&a), None) => {
+                    next += 1;
+                    a
+                }
+                (_, Some(_)) => heap.pop().unwrap_or_default(),
+                (None, None) => break,
+            };
             visits += 1;
             if visits % CHECK_EVERY == 0 {
                 if let Err(e) = ctl.checkpoint() {
-                    for k in heap.drain() {
+                    for k in heap.drain().chain(order[next..].iter().copied()) {
                         self.queued[key_index(k)] = false;
                     }
                     self.queued[key_index(key)] = false;
-                    self.order = heap.into_vec();
+                    self.order = order;
+                    self.requeued = heap;
                     return Err(e);
                 }
             }
@@ -524,7 +548,8 @@ impl Settler {
                 heap.push(heap_key(maps.layers[k].surface(c), idx));
             }
         }
-        self.order = heap.into_vec();
+        self.order = order;
+        self.requeued = heap;
         self.next_active();
         Ok((moved, lost))
     }
