@@ -263,6 +263,12 @@ impl Settler {
             rep.iterations += 1;
             let (moved, lost) = if rep.iterations <= self.jacobi_iterations {
                 self.iterate(maps, t_drop, tol, self.relaxation)
+            } else if rep.iterations > self.jacobi_iterations + 1
+                && !self.any_outflow(maps, t_drop, tol, self.sweep_relaxation)
+            {
+                // After a sweep the state is settled (see `sweep`): the confirming pass is this
+                // read-only check on both cores; a sweep runs only where it finds an outflow.
+                (0, 0)
             } else {
                 self.sweep(maps, t_drop, tol, self.sweep_relaxation, ctl)?
             };
@@ -369,6 +375,29 @@ impl Settler {
         }
         self.next_active();
         (moved - rejected, lost)
+    }
+
+    /// Whether any dirty cell of the active tiles has an outflow (read-only, rayon over bands
+    /// of rows): the cells a [`Settler::sweep`] would visit, so "none" means that sweep would move
+    /// nothing.
+    fn any_outflow(&self, maps: &SnowMaps, t_drop: f32, tol: f32, omega: f32) -> bool {
+        let (nx, nz, tx, nl) = (self.nx, self.nz, self.tx, self.n_layers);
+        (0..self.tz).into_par_iter().any(|tj| {
+            (0..tx).any(|ti| {
+                self.active[tj * tx + ti]
+                    && (tj * TILE..((tj + 1) * TILE).min(nz)).any(|j| {
+                        (ti * TILE..((ti + 1) * TILE).min(nx)).any(|i| {
+                            self.dirty[j * nx + i]
+                                && (0..nl).any(|k| {
+                                    maps.layers[k].snow[j * nx + i] != 0 && {
+                                        let (o, _) = outflow(maps, k, i, j, t_drop, tol, omega);
+                                        o[0] + o[1] + o[2] + o[3] != 0
+                                    }
+                                })
+                        })
+                    })
+            })
+        })
     }
 
     /// Next active set: the changed tiles dilated by one tile; the next dirty cells.
