@@ -252,11 +252,16 @@ pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Ou
 
     ctl.progress("encode", 0.95);
     let t0 = Instant::now();
-    let snow_nodes: Vec<GlbNode> = snow.iter().map(snow_node).collect();
+    // One node for all regions (issue 18: a node per region cost more JSON than geometry).
+    let snow_all = SnowMesh::merged(&snow, "snow");
+    let snow_nodes: Vec<GlbNode> = (!snow_all.triangles.is_empty())
+        .then(|| snow_node(&snow_all))
+        .into_iter()
+        .collect();
     let snow_glb = mesh_glb(&snow_nodes, None);
     let parts = scene_nodes(mesh);
     let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
-    scene.extend(snow.iter().map(snow_node));
+    scene.extend(snow_nodes.iter().cloned());
     let scene_glb = mesh_glb(&scene, None);
     // The displaced surface in the input's own materials (one primitive per part, sharing the
     // vertices), the snow over it as a blended layer whose alpha is the snow amount
@@ -416,11 +421,13 @@ pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Ou
             "tolerance_tan": crate::snow_cover::settle::SLOPE_TOLERANCE,
         },
         "snow_meshes": {
-            "meshes": snow.iter().map(|s| json!({"name": s.name, "triangles": s.triangles.len()})).collect::<Vec<_>>(),
+            "regions": snow.len(),
             "triangles": simplified.triangles,
             "full_resolution_triangles": simplified.full_triangles,
             "max_error_m": simplified.max_error_m,
             "within_budget": simplified.within_budget,
+            "full_resolution_regions": simplified.full_resolution_regions,
+            "open_regions": simplified.open_regions,
         },
         "displaced": {
             "vertices": displaced.positions.len(),

@@ -191,6 +191,8 @@ pub struct Settler {
     bands: Vec<(Vec<u32>, u64, u64)>,
     /// The height-ordered sweep's queue ([`heap_key`]s), kept for its allocation.
     order: Vec<u64>,
+    /// The sweep's cells re-queued while it runs (a max-heap; kept for its allocation).
+    requeued: std::collections::BinaryHeap<u64>,
     /// Per cell and layer: in the sweep's queue.
     queued: Vec<bool>,
 }
@@ -219,6 +221,7 @@ impl Settler {
             dirty_next: vec![false; nx * nz],
             bands: vec![(Vec::new(), 0, 0); tz],
             order: Vec::new(),
+            requeued: std::collections::BinaryHeap::new(),
             queued: vec![false; nx * nz * maps.layers.len()],
         }
     }
@@ -260,6 +263,12 @@ impl Settler {
             rep.iterations += 1;
             let (moved, lost) = if rep.iterations <= self.jacobi_iterations {
                 self.iterate(maps, t_drop, tol, self.relaxation)
+            } else if rep.iterations > self.jacobi_iterations + 1
+                && !self.any_outflow(maps, t_drop, tol, self.sweep_relaxation)
+            {
+                // After a sweep the state is settled (see `sweep`): the confirming pass is this
+                // read-only check on both cores; a sweep runs only where it finds an outflow.
+                (0, 0)
             } else {
                 self.sweep(maps, t_drop, tol, self.sweep_relaxation, ctl)?
             };
@@ -368,6 +377,29 @@ impl Settler {
         (moved - rejected, lost)
     }
 
+    /// Whether any dirty cell of the active tiles has an outflow (read-only, rayon over bands
+    /// of rows): the cells a [`Settler::sweep`] would visit, so "none" means that sweep would move
+    /// nothing.
+    fn any_outflow(&self, maps: &SnowMaps, t_drop: f32, tol: f32, omega: f32) -> bool {
+        let (nx, nz, tx, nl) = (self.nx, self.nz, self.tx, self.n_layers);
+        (0..self.tz).into_par_iter().any(|tj| {
+            (0..tx).any(|ti| {
+                self.active[tj * tx + ti]
+                    && (tj * TILE..((tj + 1) * TILE).min(nz)).any(|j| {
+                        (ti * TILE..((ti + 1) * TILE).min(nx)).any(|i| {
+                            self.dirty[j * nx + i]
+                                && (0..nl).any(|k| {
+                                    maps.layers[k].snow[j * nx + i] != 0 && {
+                                        let (o, _) = outflow(maps, k, i, j, t_drop, tol, omega);
+                                        o[0] + o[1] + o[2] + o[3] != 0
+                                    }
+                                })
+                        })
+                    })
+            })
+        })
+    }
+
     /// Next active set: the changed tiles dilated by one tile; the next dirty cells.
     fn next_active(&mut self) {
         std::mem::swap(&mut self.dirty, &mut self.dirty_next);
@@ -449,17 +481,38 @@ impl Settler {
                 }
             }
         }
-        let mut heap = std::collections::BinaryHeap::from(std::mem::take(&mut self.order));
+        // The cells queued at the start are sorted once (in parallel, highest key first); the
+        // cells re-queued during the sweep go to a max-heap, and each visit takes the larger key
+        // of the two. Keys are unique, so this is the same order as one heap holding all of them
+        // (the same result to the unit), without a heap pop per cell.
+        let mut order = std::mem::take(&mut self.order);
+        order.par_sort_unstable_by(|a, b| b.cmp(a));
+        let mut heap = std::mem::take(&mut self.requeued);
+        heap.clear();
+        let mut next = 0usize;
         let mut visits = 0usize;
-        while let Some(key) = heap.pop() {
+        loop {
+            let key = match (order.get(next), heap.peek()) {
+                (Some(&a), Some(&b)) if a > b => {
+                    next += 1;
+                    a
+                }
+                (Some(&a), None) => {
+                    next += 1;
+                    a
+                }
+                (_, Some(_)) => heap.pop().unwrap_or_default(),
+                (None, None) => break,
+            };
             visits += 1;
             if visits % CHECK_EVERY == 0 {
                 if let Err(e) = ctl.checkpoint() {
-                    for k in heap.drain() {
+                    for k in heap.drain().chain(order[next..].iter().copied()) {
                         self.queued[key_index(k)] = false;
                     }
                     self.queued[key_index(key)] = false;
-                    self.order = heap.into_vec();
+                    self.order = order;
+                    self.requeued = heap;
                     return Err(e);
                 }
             }
@@ -524,7 +577,8 @@ impl Settler {
                 heap.push(heap_key(maps.layers[k].surface(c), idx));
             }
         }
-        self.order = heap.into_vec();
+        self.order = order;
+        self.requeued = heap;
         self.next_active();
         Ok((moved, lost))
     }

@@ -73,6 +73,30 @@ pub struct SnowMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+impl SnowMesh {
+    /// All `meshes` as one mesh named `name` (vertices appended, indices offset): the outputs
+    /// draw and store the snow as one node, whatever the number of regions (a scene can have
+    /// thousands of small ones; one glTF node each costs more JSON than geometry).
+    pub fn merged(meshes: &[SnowMesh], name: &str) -> SnowMesh {
+        let nv = meshes.iter().map(|m| m.positions.len()).sum();
+        let nt = meshes.iter().map(|m| m.triangles.len()).sum();
+        let mut out = SnowMesh {
+            name: name.to_string(),
+            positions: Vec::with_capacity(nv),
+            normals: Vec::with_capacity(nv),
+            triangles: Vec::with_capacity(nt),
+        };
+        for m in meshes {
+            let base = out.positions.len() as u32;
+            out.positions.extend_from_slice(&m.positions);
+            out.normals.extend_from_slice(&m.normals);
+            out.triangles
+                .extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
+        }
+        out
+    }
+}
+
 /// The displaced input mesh of `displaced.glb` (see the module doc).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct DisplacedMesh {

@@ -54,6 +54,10 @@ pub struct SimplifyReport {
     /// False when even the coarsest threshold tried left more than the budget (the boundary is
     /// kept at full resolution).
     pub within_budget: bool,
+    /// Regions whose simplified mesh was not closed and were built at full resolution instead.
+    pub full_resolution_regions: usize,
+    /// Regions whose mesh is not closed even at full resolution (kept simplified).
+    pub open_regions: usize,
 }
 
 /// One region's RTIN: the padded grid and the accumulated errors.
@@ -134,9 +138,19 @@ impl Rtin {
             let [a, b, c] = triangle(t + 2, side);
             let (mx, my) = ((a.0 + b.0) / 2, (a.1 + b.1) / 2);
             let m = my * g + mx;
-            let (ia, ib) = (a.1 * g + a.0, b.1 * g + b.0);
+            let (ia, ib, ic) = (a.1 * g + a.0, b.1 * g + b.0, c.1 * g + c.0);
             let mut e = error[m];
-            if e.is_finite() && error[ia].is_finite() && error[ib].is_finite() {
+            // All three corners must be interior, the right angle `c` too: at the finest level
+            // (hypotenuse two cells long) no child's midpoint checks `c`, and a triangle kept
+            // whole around a boundary or cut corner would take one root for a corner that has
+            // several, leaving the mesh open where the cells around it are drawn separately.
+            // (Corners of a level are midpoints of coarser levels, so their errors here are
+            // still the initial ones: 0 interior, ∞ not.)
+            if e.is_finite()
+                && error[ia].is_finite()
+                && error[ib].is_finite()
+                && error[ic].is_finite()
+            {
                 let et = (0.5 * (top[ia] + top[ib]) - top[m]).abs();
                 let eb = (0.5 * (bot[ia] + bot[ib]) - bot[m]).abs();
                 e = e.max(et).max(eb);
@@ -256,31 +270,46 @@ pub fn simplified_snow_meshes(
     let mut tau = (max_error_cells.max(0.0) * maps.cell).max(1e-9);
     let count = |tau: f32| -> usize { rtins.par_iter().map(|t| t.count(tau)).sum() };
     let mut n = count(tau);
-    // Doubling 40 times from a tenth of a cell passes any height a map holds.
-    for _ in 0..40 {
-        if n <= max_triangles {
-            break;
-        }
+    // Beyond the largest height difference in the maps a larger threshold keeps nothing more
+    // whole: the doubling stops there (and the report states a threshold that means something).
+    let (lo, hi) = r
+        .height
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &(t, b)| {
+            (lo.min(t).min(b), hi.max(t).max(b))
+        });
+    let span = (hi - lo).max(0.0);
+    while n > max_triangles && tau <= span {
         tau *= 2.0;
         n = count(tau);
     }
     rep.within_budget = n <= max_triangles;
     rep.max_error_m = tau;
-    let meshes: Vec<SnowMesh> = rtins
+    // Per region: the mesh, built at full resolution instead, open at full resolution too.
+    let built: Vec<(SnowMesh, bool, bool)> = rtins
         .par_iter()
         .zip(r.members.par_iter())
         .enumerate()
         .map(|(ri, (t, list))| {
             let m = build(maps, &r, t, list, tau, ri);
             if closed(&m) {
-                m
+                return (m, false, false);
+            }
+            // Safety net: a region the simplification could not close (none known since the
+            // right-angle corner is checked) is built at full resolution; a region that is open
+            // at full resolution as well (stacked layers sharing an edge's corners, rare) keeps
+            // its simplified mesh, and the report counts it.
+            let full = build(maps, &r, t, list, -1.0, ri);
+            if closed(&full) {
+                (full, true, false)
             } else {
-                // Safety net: a region the simplification could not close (none known) is
-                // built at full resolution.
-                build(maps, &r, t, list, -1.0, ri)
+                (m, false, true)
             }
         })
         .collect();
+    rep.full_resolution_regions = built.iter().filter(|b| b.1).count();
+    rep.open_regions = built.iter().filter(|b| b.2).count();
+    let meshes: Vec<SnowMesh> = built.into_iter().map(|b| b.0).collect();
     rep.triangles = meshes.iter().map(|m| m.triangles.len()).sum();
     (meshes, rep)
 }
