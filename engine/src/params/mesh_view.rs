@@ -68,7 +68,8 @@ pub struct MeshView {
     pub sun_azimuth_deg: f64,
     /// Sun elevation, degrees, 1–90. Default 40.
     pub sun_elevation_deg: f64,
-    /// Exponential fog density per scene diagonal, 0–10. Default: the pipeline's (snow-cover 0.6,
+    /// Exponential fog density per scene diagonal, 0–10, counted from the scene's near side (the
+    /// front of the model is clear, the back fades). Default: the pipeline's (snow-cover 0.6,
     /// as the paper renders with fog).
     pub fog: f32,
     /// Cast shadows in the render. Default true.

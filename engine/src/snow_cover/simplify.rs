@@ -285,15 +285,14 @@ pub fn simplified_snow_meshes(
     }
     rep.within_budget = n <= max_triangles;
     rep.max_error_m = tau;
-    // Per region: the mesh, built at full resolution instead, open at full resolution too.
-    let built: Vec<(SnowMesh, bool, bool)> = rtins
+    let built: Vec<RegionMesh> = rtins
         .par_iter()
         .zip(r.members.par_iter())
         .enumerate()
         .map(|(ri, (t, list))| {
             let m = build(maps, &r, t, list, tau, ri);
             if closed(&m) {
-                return (m, false, false);
+                return RegionMesh::Simplified(m);
             }
             // Safety net: a region the simplification could not close (none known since the
             // right-angle corner is checked) is built at full resolution; a region that is open
@@ -301,17 +300,41 @@ pub fn simplified_snow_meshes(
             // its simplified mesh, and the report counts it.
             let full = build(maps, &r, t, list, -1.0, ri);
             if closed(&full) {
-                (full, true, false)
+                RegionMesh::FullResolution(full)
             } else {
-                (m, false, true)
+                RegionMesh::Open(m)
             }
         })
         .collect();
-    rep.full_resolution_regions = built.iter().filter(|b| b.1).count();
-    rep.open_regions = built.iter().filter(|b| b.2).count();
-    let meshes: Vec<SnowMesh> = built.into_iter().map(|b| b.0).collect();
+    rep.full_resolution_regions = built
+        .iter()
+        .filter(|b| matches!(b, RegionMesh::FullResolution(_)))
+        .count();
+    rep.open_regions = built
+        .iter()
+        .filter(|b| matches!(b, RegionMesh::Open(_)))
+        .count();
+    let meshes: Vec<SnowMesh> = built.into_iter().map(RegionMesh::into_mesh).collect();
     rep.triangles = meshes.iter().map(|m| m.triangles.len()).sum();
     (meshes, rep)
+}
+
+/// How one region's mesh came out of [`simplified_snow_meshes`].
+enum RegionMesh {
+    /// Simplified within the threshold, and closed.
+    Simplified(SnowMesh),
+    /// The simplified mesh was open; built at full resolution instead, closed.
+    FullResolution(SnowMesh),
+    /// Open even at full resolution; the simplified mesh is kept.
+    Open(SnowMesh),
+}
+
+impl RegionMesh {
+    fn into_mesh(self) -> SnowMesh {
+        match self {
+            Self::Simplified(m) | Self::FullResolution(m) | Self::Open(m) => m,
+        }
+    }
 }
 
 /// The mesh of one region at threshold `tau`.

@@ -3,7 +3,11 @@
 //!
 //! **Shading**, per sample, linear RGB: `albedo · (sun_color · max(0, n·l) · visibility +
 //! ambient · (1 + n_y)/2)`, then exponential fog `c·f + fog_color·(1 − f)`, `f = e^(−density·d)`
-//! with `d` the distance from the eye. Lighting is two-sided: the normal (interpolated per-vertex
+//! with `d` the distance from the eye *beyond the scene's near side* (the distance from the eye to
+//! the scene's bounding box): the paper renders with fog as a depth cue (SPEC §2 "Rendering"), and
+//! fog counted from the eye would wash the whole model toward the fog colour (at the default
+//! framing, 1.5–2 diagonals away, 0.6 per diagonal left a third of the model's own colour), while
+//! from the near side the front of the model keeps its colours and the back fades. Lighting is two-sided: the normal (interpolated per-vertex
 //! normals, else the flat face normal) is flipped toward the eye, because input windings are not
 //! reliable (OBJ/STL/PLY exports, open meshes seen from behind). The background is the terrain
 //! renderer's sky gradient (zenith colour at the top of the image, horizon colour at the bottom)
@@ -163,9 +167,8 @@ pub fn frame_camera(
     )
 }
 
-/// The near-plane distance for viewing the box `lo`–`hi` from `eye`: just inside the box as
-/// seen from the eye (0.99 × the distance to it), at least 10⁻⁴ of its diagonal.
-pub fn near_plane(eye: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+/// The distance from `eye` to the box `lo`–`hi` (0 inside it), and the box's diagonal.
+fn box_distance(eye: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
     let (mut near2, mut diag2) = (0.0, 0.0);
     for (k, &e) in eye.iter().enumerate() {
         let d = (lo[k] - e).max(e - hi[k]).max(0.0);
@@ -173,8 +176,15 @@ pub fn near_plane(eye: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
         let e = (hi[k] - lo[k]).max(0.0);
         diag2 += e * e;
     }
-    if diag2.is_finite() {
-        (0.99 * near2.sqrt()).max(1e-4 * diag2.sqrt()).max(1e-6)
+    (near2.sqrt(), diag2.sqrt())
+}
+
+/// The near-plane distance for viewing the box `lo`–`hi` from `eye`: just inside the box as
+/// seen from the eye (0.99 × the distance to it), at least 10⁻⁴ of its diagonal.
+pub fn near_plane(eye: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    let (near, diag) = box_distance(eye, lo, hi);
+    if diag.is_finite() {
+        (0.99 * near).max(1e-4 * diag).max(1e-6)
     } else {
         1e-3
     }
@@ -228,6 +238,8 @@ pub struct MeshRenderer<'a> {
     sun: [f32; 3],
     sun_ok: bool,
     eye: [f64; 3],
+    /// Where the fog starts: the distance from the eye to the scene's bounding box (module doc).
+    fog_start: f64,
     /// World size of a pixel at unit view depth.
     pixel: f64,
     raster: Rasterizer,
@@ -269,6 +281,9 @@ impl<'a> MeshRenderer<'a> {
             },
             &proj,
         );
+        let fog_start = Some(box_distance(camera.eye, scene.lo, scene.hi).0)
+            .filter(|d| d.is_finite())
+            .unwrap_or(0.0);
         Ok(Self {
             scene,
             shadow,
@@ -276,6 +291,7 @@ impl<'a> MeshRenderer<'a> {
             sun: sun.map(|v| v as f32),
             sun_ok,
             eye: camera.eye,
+            fog_start,
             pixel: 2.0 * (camera.fov_deg.clamp(1e-3, 179.0) * 0.5).to_radians().tan()
                 / f64::from(height.max(1)),
             raster,
@@ -347,12 +363,13 @@ impl<'a> MeshRenderer<'a> {
         [0, 1, 2].map(|k| light.sun_color[k] * direct + light.ambient * sky[k])
     }
 
-    /// The share of a colour at `p` that survives the fog (1 without fog); the rest is
+    /// The share of a colour at `p` that survives the fog (1 without fog; fog counted from the
+    /// scene's near side, module doc); the rest is
     /// [`MeshRenderer::fog_color`].
     #[inline]
     pub fn fog_factor(&self, p: [f64; 3]) -> f32 {
         if self.light.fog_density > 0.0 {
-            let dist = DVec3::from(self.eye).distance(DVec3::from(p));
+            let dist = (DVec3::from(self.eye).distance(DVec3::from(p)) - self.fog_start).max(0.0);
             (-(f64::from(self.light.fog_density)) * dist).exp() as f32
         } else {
             1.0

@@ -318,7 +318,7 @@ impl RasterShader<'_, '_> {
             *o = wt[0] * p[i] + wt[1] * q[i] + wt[2] * u[i] + wt[3] * v[i];
         }
         let albedo = [m[0], m[1], m[2]];
-        let mut c = albedo;
+        let mut light = None;
         if l.shading {
             let (gx, gz) = (m[4], m[5]);
             let inv = 1.0 / (gx * gx + 1.0 + gz * gz).sqrt();
@@ -335,15 +335,8 @@ impl RasterShader<'_, '_> {
             if b.ao.is_some() {
                 amb *= m[6];
             }
-            for ch in 0..3 {
-                c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb * b.amb_tint[ch]);
-            }
+            light = Some((direct, amb));
         }
-        b.haze(&mut c, hit.t);
-        Sample {
-            c,
-            a: 1.0,
-            t: hit.t as f32,
-        }
+        b.finish_sample(albedo, light, hit.t)
     }
 }

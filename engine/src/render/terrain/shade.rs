@@ -63,7 +63,7 @@ impl Shader<'_, '_> {
         let l = self.light;
         let hit = *hit;
         let albedo = acc.hit_albedo(&hit);
-        let mut c = albedo;
+        let mut light = None;
         if l.shading {
             let n = acc.hit_normal(&hit);
             let ndl = DVec3::from(n).dot(DVec3::from(self.sun));
@@ -81,15 +81,33 @@ impl Shader<'_, '_> {
                 let w = l.ambient_occlusion;
                 amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
             }
+            light = Some((direct, amb));
+        }
+        self.finish_sample(albedo, light, hit.t)
+    }
+
+    /// The tail every terrain shading path shares: `albedo` lit by the sun (`direct`: cos × sun
+    /// visibility) and the tinted sky ambient (`amb`) when shading is on (`light`), then hazed at
+    /// distance `t` (SPEC §1 steps 7–8).
+    #[inline]
+    pub(super) fn finish_sample(
+        &self,
+        albedo: [f32; 3],
+        light: Option<(f32, f32)>,
+        t: f64,
+    ) -> Sample {
+        let mut c = albedo;
+        if let Some((direct, amb)) = light {
+            let l = self.light;
             for ch in 0..3 {
                 c[ch] = albedo[ch] * (l.sun_color[ch] * direct + amb * self.amb_tint[ch]);
             }
         }
-        self.haze(&mut c, hit.t);
+        self.haze(&mut c, t);
         Sample {
             c,
             a: 1.0,
-            t: hit.t as f32,
+            t: t as f32,
         }
     }
 

@@ -376,8 +376,26 @@ fn render_fog_pulls_far_surfaces_to_the_fog_color() {
     let fog = linear_to_srgb8(0.9);
     let (near, far) = (at([0.0, 0.0, -1.0]), at([0.0, 0.0, -30.0]));
     assert!(fog - far < fog - near, "near {near} far {far} fog {fog}");
-    // The near one is close to the unfogged value: 0.2·0.9 at e^(−0.05·~3.2).
-    let d = (1.5f64 * 1.5 + 3.0 * 3.0).sqrt();
+    // The near one is close to the unfogged value: 0.2·0.9 at e^(−0.05·d), d its distance from
+    // the eye less the distance from the eye to the scene's bounding box (fog counts from the
+    // scene's near side).
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for q in &p {
+        for k in 0..3 {
+            lo[k] = lo[k].min(f64::from(q[k]));
+            hi[k] = hi[k].max(f64::from(q[k]));
+        }
+    }
+    let start = (0..3)
+        .map(|k| {
+            (lo[k] - cam.eye[k])
+                .max(cam.eye[k] - hi[k])
+                .max(0.0)
+                .powi(2)
+        })
+        .sum::<f64>()
+        .sqrt();
+    let d = (1.5f64 * 1.5 + 3.0 * 3.0).sqrt() - start;
     let f = (-0.05 * d).exp() as f32;
     let want = linear_to_srgb8(0.18 * f + 0.9 * (1.0 - f));
     assert!(
