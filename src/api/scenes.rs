@@ -244,14 +244,14 @@ async fn ready_version(
         Some(n) => s.version(n).cloned(),
         None => s.latest().cloned(),
     };
-    let mut v = pick(&scene).ok_or_else(|| {
-        ApiError::InvalidParameter(ParamError::new(
+    // A version number naming no version is a missing resource (404, like an unknown scene);
+    // a scene with no version left to start from is a parameter problem (422).
+    let mut v = pick(&scene).ok_or_else(|| match n {
+        Some(n) => ApiError::NotFound(format!("{field}: scene {id} has no version {n}")),
+        None => ApiError::InvalidParameter(ParamError::new(
             field,
-            format!(
-                "scene {id} has no version {}",
-                n.map_or("ready".into(), |n| n.to_string())
-            ),
-        ))
+            format!("scene {id} has no ready version"),
+        )),
     })?;
     let mut scene = scene;
     if v.status == VersionStatus::Pending {

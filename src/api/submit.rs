@@ -565,7 +565,7 @@ pub(crate) fn sanitize_filename(name: &str) -> String {
 
 /// Fields where `null` is a value of its own ("none"), as `openapi.yaml` declares them: the cloud
 /// state's transparent background and the decoder options "from the file".
-const NULLABLE: &[&str] = &["background", "bounds", "dims"];
+const NULLABLE: &[&str] = &["background", "bounds", "dims", "kappa"];
 
 /// Refuses `null` anywhere in request parameters except the [`NULLABLE`] fields: the schema
 /// does not allow it, and "null means the default" would make two spellings of one request.

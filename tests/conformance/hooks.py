@@ -20,7 +20,11 @@ the positive mode are touched: a negative case keeps every violation schemathesi
      (snow-terrain, also against the `winter` preset's values when one is not given): swapped or
      raised;
    - edit pixels (`from`, `to`, `strokes[].pixels`) inside the view (`width` × `height`,
-     default 960 × 540): taken modulo the size.
+     default 960 × 540): taken modulo the size;
+   - a `set` edit gives at least one of its fields: `kappa` is added;
+   - a volume's `bounds` have min < max and sides not thinner than the documented bound: widened;
+   - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume).
+3. One filter (`filter_case`), on negative cases only: see its doc.
 """
 
 import os
@@ -42,6 +46,23 @@ PRESET_PAIRS = {
 }
 # The default view of a cloud scene edit.
 EDIT_VIEW = (960, 540)
+# Default output sizes per operation (for a case that gives one side only).
+DEFAULT_SIZE = {
+    "submitSnowTerrain": (900, 600),
+    "submitSnowCover": (960, 640),
+    "submitDust": (960, 640),
+    "submitCloud": (960, 540),
+    "renderCloudScene": (960, 540),
+    "editCloudScene": EDIT_VIEW,
+}
+# Uploaded assets of each kind (`tests/it/conformance.rs`), for JSON bodies naming one.
+ASSETS = {
+    "submitSnowTerrain": os.environ.get("PHENOMENA_ST_DEM_ASSET"),
+    "submitSnowCover": os.environ.get("PHENOMENA_ST_MESH_ASSET"),
+    "submitDust": os.environ.get("PHENOMENA_ST_MESH_ASSET"),
+    "submitCloud": os.environ.get("PHENOMENA_ST_VOLUME_ASSET"),
+    "createCloudScene": os.environ.get("PHENOMENA_ST_VOLUME_ASSET"),
+}
 
 
 def _read(name):
@@ -51,7 +72,9 @@ def _read(name):
 
 def _png(width=4, height=4):
     """A small RGB PNG."""
-    raw = b"".join(b"\x00" + bytes((x * 60, y * 60, 120) * 1 for x in range(width)) for y in range(height))
+    raw = b"".join(
+        b"\x00" + bytes(v for x in range(width) for v in (x * 60, y * 60, 120)) for y in range(height)
+    )
 
     def chunk(kind, data):
         c = struct.pack(">I", len(data)) + kind + data
@@ -84,17 +107,32 @@ def _positive(case):
     return meta is not None and meta.generation.mode == GenerationMode.POSITIVE
 
 
-def _fit_pixels(obj, default=None):
-    """`width` × `height` within MAX_PIXELS, lowering the height."""
+def _fit_pixels(obj, default):
+    """`width` × `height` within MAX_PIXELS (the missing side at its default), lowering the
+    height."""
     if not isinstance(obj, dict):
         return
-    w, h = obj.get("width"), obj.get("height")
+    w, h = obj.get("width", default[0]), obj.get("height", default[1])
     if isinstance(w, int) and isinstance(h, int) and w * h > MAX_PIXELS:
+        obj["width"] = w
         obj["height"] = max(16, MAX_PIXELS // w)
-    elif isinstance(w, int) and h is None and default and w * default[1] > MAX_PIXELS:
-        obj["height"] = max(16, MAX_PIXELS // w)
-    elif isinstance(h, int) and w is None and default and h * default[0] > MAX_PIXELS:
-        obj["width"] = max(16, MAX_PIXELS // h)
+        if w * obj["height"] > MAX_PIXELS:
+            obj["width"] = max(16, MAX_PIXELS // obj["height"])
+
+
+def _bounds(obj):
+    """A volume's `bounds`: each side at least 1 (min < max, not thin)."""
+    b = obj.get("bounds") if isinstance(obj, dict) else None
+    if isinstance(b, list) and len(b) == 2 and all(isinstance(c, list) and len(c) == 3 for c in b):
+        lo, hi = b
+        for i in range(3):
+            if isinstance(lo[i], (int, float)) and isinstance(hi[i], (int, float)):
+                a, c = min(lo[i], hi[i]), max(lo[i], hi[i])
+                if c - a < max(1.0, 1e-5 * max(abs(a), abs(c))):
+                    c = a + max(1.0, 1e-5 * abs(a)) if abs(a) < 1e8 else a
+                    if c - a < 1.0:
+                        a, c = -1.0, 1.0
+                lo[i], hi[i] = a, c
 
 
 def _distinct_eye(obj):
@@ -144,8 +182,30 @@ def _edit(body):
             s["pixels"] = [_inside(p, w, h) for p in s["pixels"]]
 
 
+SET_FIELDS = ("kappa", "sun_direction", "sun_azimuth_deg", "sun_color", "scattering", "albedo")
+
+
 @schemathesis.hook
-def map_case(ctx, case):
+def filter_case(ctx, case):
+    """A negative case of `POST /v1/assets` whose `file` part schemathesis turned into a number or
+    boolean: on the wire it is that text, a valid (tiny) file the server cannot and should not
+    tell from one (its refusals of what the schema excludes are asserted by
+    `api::asset_uploads_refuse_what_the_schema_refuses`)."""
+    op = ctx.operation.definition.raw.get("operationId", "") if ctx.operation else ""
+    if op == "uploadAsset" and not _positive(case) and isinstance(case.body, dict):
+        f = case.body.get("file")
+        if f is not None and not isinstance(f, (str, bytes)):
+            return False
+    return True
+
+
+@schemathesis.hook
+def before_call(ctx, case, kwargs):
+    """Applied to every case before it is sent (every phase, the coverage phase included)."""
+    _repair(ctx, case)
+
+
+def _repair(ctx, case):
     if not _positive(case):
         return case
     op = ctx.operation.definition.raw.get("operationId", "") if ctx.operation else ""
@@ -157,14 +217,26 @@ def map_case(ctx, case):
         for part in FILE_PARTS:
             if part in body:
                 body[part] = _file(part)
-    params = body.get("params") if op.startswith("submit") or op == "createCloudScene" else body
-    if op in ("submitSnowTerrain", "submitSnowCover", "submitDust", "submitCloud", "renderCloudScene"):
-        _fit_pixels(params)
+    elif ASSETS.get(op) and "asset" in body:
+        body["asset"] = ASSETS[op]
+    if op.startswith("submit") or op == "createCloudScene":
+        if not isinstance(body.get("params"), dict) and body.get("params") is None and op in DEFAULT_SIZE:
+            body["params"] = {}
+        params = body.get("params")
+    else:
+        params = body
+    if op in DEFAULT_SIZE and op != "editCloudScene":
+        _fit_pixels(params, DEFAULT_SIZE[op])
         _distinct_eye(params)
+    if op in ("submitCloud", "createCloudScene"):
+        _bounds(params)
     if op == "submitSnowTerrain":
         _terrain(params)
     if op == "editCloudScene":
         _fit_pixels(body, EDIT_VIEW)
         _distinct_eye(body)
         _edit(body)
+        kind = (case.path_parameters or {}).get("kind")
+        if kind == "set" and not any(k in body for k in SET_FIELDS):
+            body["kappa"] = 1.0
     return case
