@@ -47,7 +47,12 @@ pub fn decode_cost(kind: PipelineKind, limits: &Limits, with_extra_input: bool) 
 /// decoders check the sizes a file declares against the limits before they allocate, so a file
 /// that fits decodes at once and a larger one is refused (`TooLarge`) having allocated nothing,
 /// and then waits for the whole worst case.
-pub fn limits_within(kind: PipelineKind, limits: &Limits, with_extra_input: bool, bytes: u64) -> Limits {
+pub fn limits_within(
+    kind: PipelineKind,
+    limits: &Limits,
+    with_extra_input: bool,
+    bytes: u64,
+) -> Limits {
     let full = decode_cost(kind, limits, with_extra_input);
     if bytes >= full {
         return *limits;
@@ -78,8 +83,9 @@ pub fn limits_within(kind: PipelineKind, limits: &Limits, with_extra_input: bool
 ///   [`decode_cost`]) for the BVH, the per-triangle attributes and the output mesh.
 /// - **cloud, cloud-edit**: 48 B per voxel: the density (4 B), the majorant and shadow grids and
 ///   the ambient field (12 B each), a second ambient field for an edit (12 B).
-/// - **every pipeline**: 64 B per output pixel (linear RGB accumulation, layers, the RGBA8 image
-///   and its PNG encoding).
+/// - **every pipeline**: 32 B per output pixel (linear RGB accumulation, depth, the RGBA8 image
+///   and its PNG encoding). Counted from the buffers, not measured (only snow-terrain's per-cell
+///   figure is); a 4096² render takes 512 MiB of the default 768 MiB budget.
 pub fn run_unit_costs(kind: PipelineKind, with_extra_input: bool) -> (u64, u64) {
     let extra = u64::from(with_extra_input);
     let per_unit = match kind {
@@ -87,7 +93,7 @@ pub fn run_unit_costs(kind: PipelineKind, with_extra_input: bool) -> (u64, u64) 
         PipelineKind::SnowCover | PipelineKind::Dust => 480,
         PipelineKind::Cloud | PipelineKind::CloudEdit => 48,
     };
-    (per_unit, 64)
+    (per_unit, 32)
 }
 
 /// The memory, in bytes, a run of `kind` is estimated to take at its peak on an input of `units`
@@ -126,9 +132,7 @@ pub fn job_size(job: &Job) -> (PipelineKind, u64, u64, bool) {
             px(params.view.width, params.view.height),
             false,
         ),
-        Job::Cloud {
-            params, volume, ..
-        } => (
+        Job::Cloud { params, volume, .. } => (
             PipelineKind::Cloud,
             voxels(volume),
             px(params.width, params.height),

@@ -46,7 +46,11 @@ const RETRY_AFTER_SECS: u64 = 5;
 /// Memory for one check: the worst case (`None`: decode with the configured limits) or part of
 /// it (`Some(bytes)`: decode with the limits scaled to `bytes`; a `TooLarge` then means "wait
 /// for the worst case", [`reserve_worst`]).
-pub fn check_memory(budget: &MemoryBudget, worst: u64, input_bytes: u64) -> Option<(Reservation, Option<u64>)> {
+pub fn check_memory(
+    budget: &MemoryBudget,
+    worst: u64,
+    input_bytes: u64,
+) -> Option<(Reservation, Option<u64>)> {
     if let Some(r) = budget.try_reserve(worst) {
         return Some((r, None));
     }

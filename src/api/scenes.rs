@@ -18,8 +18,7 @@ use super::extract::ApiPath;
 use super::jobs::prefer_wait;
 use super::strict_json::{self, StrictJsonError};
 use super::submit::{
-    admit_input, queue_job, read_body, reject_nulls, request_key, respond, store_input,
-    touch_asset,
+    admit_input, queue_job, read_body, reject_nulls, request_key, respond, store_input, touch_asset,
 };
 use super::AppState;
 use crate::error::ApiError;

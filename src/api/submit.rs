@@ -363,7 +363,14 @@ pub(super) async fn admit_input(
         // client goes away and this request is dropped meanwhile.
         let result = tokio::task::spawn_blocking(move || {
             let _reservation = reservation;
-            pipelines.admit(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes, decode_bytes)
+            pipelines.admit(
+                pipeline,
+                &p,
+                &bytes,
+                filename.as_deref(),
+                &aux_bytes,
+                decode_bytes,
+            )
         })
         .await
         .map_err(blocking_err)?;

@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 use phenomena_engine::Control;
 
 use super::{CancelReason, JobError, JobRecord, Live, OutputRecord, StageTiming, Status};
-use crate::error::Problem;
 use crate::budget::{MemoryBudget, Reservation};
+use crate::error::Problem;
 use crate::metrics::Metrics;
 use crate::pipeline_set::{PipelineSet, RunError};
 use crate::store::Store;

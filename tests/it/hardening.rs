@@ -408,12 +408,12 @@ async fn a_job_larger_than_the_memory_budget_is_413_and_one_within_it_runs() {
     assert_eq!(r.status().as_u16(), 202);
     let job: Value = r.json().await.unwrap();
     let memory = job["input"]["memory"].as_u64().expect("an estimate");
-    // At least the output image's pixels at 64 B each, at most the budget.
-    assert!((320 * 240 * 64..=BUDGET).contains(&memory), "{job}");
+    // At least the output image's pixels at 32 B each, at most the budget.
+    assert!((320 * 240 * 32..=BUDGET).contains(&memory), "{job}");
     let done = s.wait_done(job["id"].as_str().unwrap()).await;
     assert_eq!(done["status"], "succeeded", "{done}");
 
-    // 4096² pixels at 64 B each is 1 GiB: over the budget whatever the DEM.
+    // 4096² pixels at 32 B each is 512 MiB: over the budget whatever the DEM.
     let big = json!({"width": 4096, "height": 4096});
     let r = s.submit("snow-terrain", "dem", big, dem, "dem.asc").await;
     let body = problem(r, 413, "too-large").await;

@@ -117,12 +117,20 @@ mod unit_vector_tests {
 
     #[test]
     fn any_vector_with_a_non_zero_component_normalises_and_zero_is_refused() {
-        for v in [[3.0, 0.0, 4.0], [1e300, 1e300, 0.0], [5e-324, 0.0, 0.0], [0.0, -2.0, 0.0]] {
+        for v in [
+            [3.0, 0.0, 4.0],
+            [1e300, 1e300, 0.0],
+            [5e-324, 0.0, 0.0],
+            [0.0, -2.0, 0.0],
+        ] {
             let u = unit_vector("d", v).unwrap();
             let l = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
             assert!((l - 1.0).abs() < 1e-12, "{v:?} -> {u:?}");
             for (a, b) in u.iter().zip(v) {
-                assert_eq!(a.signum() * f64::from(u8::from(*a != 0.0)), b.signum() * f64::from(u8::from(b != 0.0)));
+                assert_eq!(
+                    a.signum() * f64::from(u8::from(*a != 0.0)),
+                    b.signum() * f64::from(u8::from(b != 0.0))
+                );
             }
         }
         assert_eq!(unit_vector("d", [0.6, 0.8, 0.0]).unwrap(), [0.6, 0.8, 0.0]);
