@@ -93,16 +93,12 @@ impl MemoryBudget {
         }
     }
 
-    /// Reserves `bytes` (all of the budget when it is larger), waiting as long as it takes.
-    pub async fn reserve(&self, bytes: u64) -> Reservation {
+    /// Reserves `bytes` (all of the budget when it is larger), waiting as long as it takes
+    /// (`None` only if the semaphore were closed; it never is).
+    pub async fn reserve(&self, bytes: u64) -> Option<Reservation> {
         let want = self.kib(bytes);
-        let permit = self
-            .permits
-            .clone()
-            .acquire_many_owned(want)
-            .await
-            .expect("the memory budget's semaphore is never closed");
-        Reservation { permit }
+        let permit = self.permits.clone().acquire_many_owned(want).await.ok()?;
+        Some(Reservation { permit })
     }
 }
 
@@ -126,7 +122,7 @@ mod tests {
         drop((r1, r2));
         assert_eq!(b.in_use_bytes(), 0);
         // Larger than the budget: all of it.
-        let all = b.reserve(1 << 40).await;
+        let all = b.reserve(1 << 40).await.unwrap();
         assert_eq!(b.in_use_bytes(), b.total_bytes());
         assert!(b.reserve_within(1, wait).await.is_none());
         drop(all);
@@ -136,9 +132,9 @@ mod tests {
     #[tokio::test]
     async fn a_waiting_reservation_gets_the_budget_when_it_is_returned() {
         let b = MemoryBudget::new(8 << 20);
-        let held = b.reserve(8 << 20).await;
+        let held = b.reserve(8 << 20).await.unwrap();
         let b2 = b.clone();
-        let waiter = tokio::spawn(async move { b2.reserve(5 << 20).await.bytes() });
+        let waiter = tokio::spawn(async move { b2.reserve(5 << 20).await.unwrap().bytes() });
         tokio::task::yield_now().await;
         assert!(!waiter.is_finished());
         drop(held);

@@ -112,7 +112,7 @@ async fn reserve_memory(ex: &Executor, rec: &JobRecord, live: &Live) -> Option<R
     tokio::pin!(wait);
     loop {
         tokio::select! {
-            r = &mut wait => return Some(r),
+            r = &mut wait => return r,
             () = tokio::time::sleep(Duration::from_millis(100)) => {
                 if live.cancel.load(Ordering::Relaxed) != 0 {
                     return None;
