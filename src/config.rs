@@ -64,16 +64,16 @@ pub struct ServeArgs {
     /// Largest input mesh in triangles. Default 4000000.
     #[arg(long, env = "PHENOMENA_MAX_INPUT_TRIANGLES")]
     pub max_input_triangles: Option<u64>,
-    /// Memory, in bytes, that the up-front checks of submissions may spend decoding inputs at
-    /// once in this process (the decode that rejects a corrupt or oversize file with a 4xx
-    /// before a job is queued). Each check reserves its input's size plus the most its decode can
-    /// allocate under the input limits (a DEM: 12 bytes per cell of `max_input_cells`); a
-    /// reservation larger than the budget takes all of it. A submission that cannot reserve
-    /// within 10 s is answered 429 with `Retry-After`, before any large allocation. Default
-    /// 805306368 (768 MiB): one decode of the largest DEM the default limits accept
-    /// (8192² × 12 B), so a process answering a flood of large inputs stays under 1 GiB.
-    #[arg(long, env = "PHENOMENA_DECODE_BUDGET_BYTES")]
-    pub decode_budget_bytes: Option<u64>,
+    /// Memory, in bytes, that this process's up-front input checks and running jobs may hold at
+    /// once (see RELIABILITY.md, "Admission"). A check reserves its input's size plus the most
+    /// its decode can allocate under the input limits (a DEM: 12 bytes per cell of
+    /// `max_input_cells`), or decodes within what is free with the limits scaled to it; a
+    /// submission that cannot reserve within 10 s is answered 429 with `Retry-After`, before any
+    /// large allocation. A worker reserves a job's estimated peak memory before it starts it; a
+    /// job estimated larger than the whole budget is refused 413. Default 805306368 (768 MiB),
+    /// so a process answering a flood of large inputs stays under 1 GiB.
+    #[arg(long, env = "PHENOMENA_MEMORY_BUDGET_BYTES")]
+    pub memory_budget_bytes: Option<u64>,
     /// Jobs running at once. Default 1 (each job uses every core).
     #[arg(long, env = "PHENOMENA_CONCURRENCY")]
     pub concurrency: Option<usize>,
@@ -176,7 +176,7 @@ pub struct Config {
     pub max_input_cells: u64,
     pub max_output_pixels: u64,
     pub max_input_triangles: u64,
-    pub decode_budget_bytes: u64,
+    pub memory_budget_bytes: u64,
     pub concurrency: usize,
     pub queue_capacity: usize,
     pub job_timeout_secs: u64,
@@ -273,7 +273,7 @@ impl Default for Config {
             max_input_cells: 8192 * 8192,
             max_output_pixels: 7680 * 4320,
             max_input_triangles: 4_000_000,
-            decode_budget_bytes: 768 << 20,
+            memory_budget_bytes: 768 << 20,
             concurrency: 1,
             queue_capacity: 64,
             job_timeout_secs: 600,
@@ -334,7 +334,7 @@ impl Config {
             max_input_cells: pick!(max_input_cells),
             max_output_pixels: pick!(max_output_pixels),
             max_input_triangles: pick!(max_input_triangles),
-            decode_budget_bytes: pick!(decode_budget_bytes),
+            memory_budget_bytes: pick!(memory_budget_bytes),
             concurrency: pick!(concurrency),
             queue_capacity: pick!(queue_capacity),
             job_timeout_secs: pick!(job_timeout_secs),
@@ -402,9 +402,9 @@ impl Config {
             return Err(ConfigError::Zero("concurrency"));
         }
         // Below 1 MiB no real input could be checked.
-        if cfg.decode_budget_bytes < 1 << 20 {
+        if cfg.memory_budget_bytes < 1 << 20 {
             return Err(ConfigError::Invalid(
-                "decode_budget_bytes must be at least 1048576 (1 MiB)".into(),
+                "memory_budget_bytes must be at least 1048576 (1 MiB)".into(),
             ));
         }
         if cfg.max_attempts == 0 {
@@ -445,6 +445,7 @@ impl Config {
             sweep_interval: Duration::from_secs(self.sweep_interval_secs),
             max_attempts: self.max_attempts,
             threads: self.threads,
+            memory: crate::budget::MemoryBudget::new(self.memory_budget_bytes),
         }
     }
 

@@ -4,6 +4,7 @@
 //! progress, cancel) → an engine pipeline → [`store`] (assets and outputs).
 
 pub mod api;
+pub mod budget;
 pub mod cli;
 pub mod config;
 pub mod error;
@@ -131,7 +132,7 @@ pub async fn state_with(
         .store_bytes
         .set(i64::try_from(jobs.store().blob_bytes().await).unwrap_or(i64::MAX));
     Ok(AppState {
-        decodes: api::DecodeBudget::new(cfg.decode_budget_bytes, api::DECODE_WAIT),
+        memory: jcfg.memory.clone(),
         cfg: Arc::new(cfg),
         jobs,
         scenes,

@@ -127,6 +127,38 @@ pub trait PipelineSet: Send + Sync + 'static {
     fn decode_cost(&self, _pipeline: &str, _with_aux: bool) -> u64 {
         0
     }
+    /// Admits a submission's input: decodes it with its auxiliary inputs as a run would (a 4xx
+    /// naming the input at fault otherwise), describes it (see [`PipelineSet::describe_input`])
+    /// and estimates the most memory the job's run will take ([`Admitted::run_bytes`]).
+    /// `decode_bytes`: decode with the input limits scaled down so that the decode allocates at
+    /// most that many bytes (a file declaring more is refused `TooLarge` before allocating);
+    /// `None`: the configured limits. The default decodes with [`PipelineSet::describe_input`]
+    /// or [`PipelineSet::check_with_named_inputs`] and estimates 0.
+    fn admit(
+        &self,
+        pipeline: &str,
+        params: &Validated,
+        input: &[u8],
+        filename: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+        _decode_bytes: Option<u64>,
+    ) -> Result<Admitted, (Option<&'static str>, InputError)> {
+        let info = if aux.is_empty() {
+            self.describe_input(pipeline, params, input, filename)
+                .map_err(|e| (None, e))?
+        } else {
+            self.check_with_named_inputs(pipeline, params, input, filename, aux)?;
+            serde_json::Value::Object(Default::default())
+        };
+        Ok(Admitted { info, run_bytes: 0 })
+    }
+    /// The estimated peak memory of a run of `pipeline` on an input of `units` elements (DEM
+    /// cells, mesh triangles, volume voxels) rendering `pixels` pixels, with an auxiliary input
+    /// or without: for jobs whose input was admitted earlier (a cloud scene's renders and
+    /// edits). Default 0.
+    fn run_cost(&self, _pipeline: &str, _units: u64, _pixels: u64, _with_aux: bool) -> u64 {
+        0
+    }
     /// Decodes the input like [`PipelineSet::check_input`] and describes it (a volume's
     /// dimensions and box) for resources that keep the input, such as cloud scenes.
     fn describe_input(
@@ -139,6 +171,16 @@ pub trait PipelineSet: Send + Sync + 'static {
         self.check_input(pipeline, params, input, filename)
             .map(|()| serde_json::Value::Object(Default::default()))
     }
+}
+
+/// What [`PipelineSet::admit`] learned about an input.
+#[derive(Debug, Clone)]
+pub struct Admitted {
+    /// The input's description ([`PipelineSet::describe_input`]).
+    pub info: serde_json::Value,
+    /// The job's estimated peak memory in bytes: what a worker reserves from its memory budget
+    /// before it starts the job.
+    pub run_bytes: u64,
 }
 
 /// The pipelines of `phenomena-engine`, with the configured input and output limits.
@@ -227,6 +269,34 @@ impl PipelineSet for EnginePipelines {
         PipelineKind::parse(name).map_or(0, |k| {
             registry::decode_cost(k, &self.limits, with_extra_input)
         })
+    }
+
+    fn admit(
+        &self,
+        name: &str,
+        params: &Validated,
+        input: &[u8],
+        filename: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+        decode_bytes: Option<u64>,
+    ) -> Result<Admitted, (Option<&'static str>, InputError)> {
+        let k = kind(name).map_err(|e| (None, e.into()))?;
+        let limits = match decode_bytes {
+            Some(b) => registry::limits_within(k, &self.limits, !aux.is_empty(), b),
+            None => self.limits,
+        };
+        let p = self.typed(name, params).map_err(|e| (None, e.into()))?;
+        let job = registry::decode_parts(p, input, filename, aux, &limits)
+            .map_err(|e| (e.part, e.error))?;
+        let (kind, units, pixels, extra) = registry::job_size(&job);
+        Ok(Admitted {
+            info: registry::describe(&job),
+            run_bytes: registry::run_cost(kind, units, pixels, extra),
+        })
+    }
+
+    fn run_cost(&self, name: &str, units: u64, pixels: u64, with_aux: bool) -> u64 {
+        PipelineKind::parse(name).map_or(0, |k| registry::run_cost(k, units, pixels, with_aux))
     }
 
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {

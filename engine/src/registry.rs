@@ -41,6 +41,114 @@ pub fn decode_cost(kind: PipelineKind, limits: &Limits, with_extra_input: bool) 
     }
 }
 
+/// `limits` scaled down so that decoding one input of `kind` allocates at most `bytes`
+/// ([`decode_cost`] of the result ≤ `bytes`): the input-size limits shrink in proportion, the
+/// output limit stays. The server decodes with them when less than the worst case is free: the
+/// decoders check the sizes a file declares against the limits before they allocate, so a file
+/// that fits decodes at once and a larger one is refused (`TooLarge`) having allocated nothing,
+/// and then waits for the whole worst case.
+pub fn limits_within(
+    kind: PipelineKind,
+    limits: &Limits,
+    with_extra_input: bool,
+    bytes: u64,
+) -> Limits {
+    let full = decode_cost(kind, limits, with_extra_input);
+    if bytes >= full {
+        return *limits;
+    }
+    // A mesh's texture budget does not shrink with its triangles.
+    let fixed = match kind {
+        PipelineKind::SnowCover | PipelineKind::Dust => {
+            crate::formats::mesh::MeshOptions::default().max_texture_pixels * 4
+        }
+        _ => 0,
+    };
+    let scale = bytes.saturating_sub(fixed) as f64 / full.saturating_sub(fixed).max(1) as f64;
+    let shrink = |n: u64| (n as f64 * scale).floor() as u64;
+    Limits {
+        max_input_cells: shrink(limits.max_input_cells),
+        max_input_triangles: shrink(limits.max_input_triangles),
+        ..*limits
+    }
+}
+
+/// Bytes a run of `kind` takes per unit of its input (a DEM cell, a mesh triangle, a volume
+/// voxel) and per output pixel: the per-element sizes behind [`run_cost`].
+///
+/// - **snow-terrain**: 32 B per cell, measured (an 8192² DEM's job peaked at 2,043 MiB, 31.8 B
+///   per cell: the `f32` heights, snow depth, normals, slope/aspect and shading grids and the
+///   terrain mesh); an orthophoto adds 16 B per cell (its decode and the rock colours).
+/// - **snow-cover, dust**: 480 B per triangle: three times the decoded mesh (160 B, see
+///   [`decode_cost`]) for the BVH, the per-triangle attributes and the output mesh.
+/// - **cloud, cloud-edit**: 48 B per voxel: the density (4 B), the majorant and shadow grids and
+///   the ambient field (12 B each), a second ambient field for an edit (12 B).
+/// - **every pipeline**: 32 B per output pixel (linear RGB accumulation, depth, the RGBA8 image
+///   and its PNG encoding). Counted from the buffers, not measured (only snow-terrain's per-cell
+///   figure is); a 4096² render takes 512 MiB of the default 768 MiB budget.
+pub fn run_unit_costs(kind: PipelineKind, with_extra_input: bool) -> (u64, u64) {
+    let extra = u64::from(with_extra_input);
+    let per_unit = match kind {
+        PipelineKind::SnowTerrain => 32 + 16 * extra,
+        PipelineKind::SnowCover | PipelineKind::Dust => 480,
+        PipelineKind::Cloud | PipelineKind::CloudEdit => 48,
+    };
+    (per_unit, 32)
+}
+
+/// The memory, in bytes, a run of `kind` is estimated to take at its peak on an input of `units`
+/// elements (DEM cells, mesh triangles or volume voxels) rendering `pixels` output pixels, with
+/// the sizes of [`run_unit_costs`]. A worker reserves it from its process's memory budget before
+/// it starts the job, so running jobs cannot add up to more than the budget; the server answers
+/// 413 at submission when it exceeds the whole budget.
+pub fn run_cost(kind: PipelineKind, units: u64, pixels: u64, with_extra_input: bool) -> u64 {
+    let (per_unit, per_pixel) = run_unit_costs(kind, with_extra_input);
+    units
+        .saturating_mul(per_unit)
+        .saturating_add(pixels.saturating_mul(per_pixel))
+}
+
+/// The input size of a decoded job in [`run_cost`]'s units, its output pixels, and whether it
+/// has an auxiliary input.
+pub fn job_size(job: &Job) -> (PipelineKind, u64, u64, bool) {
+    let px = |w: u32, h: u32| u64::from(w) * u64::from(h);
+    let voxels = |v: &Volume| v.dims.iter().map(|&d| d as u64).product::<u64>();
+    match job {
+        Job::SnowTerrain { params, dem, rock } => (
+            PipelineKind::SnowTerrain,
+            (dem.width as u64) * (dem.height as u64),
+            px(params.width, params.height),
+            rock.is_some(),
+        ),
+        Job::SnowCover { params, mesh } => (
+            PipelineKind::SnowCover,
+            mesh.triangles.len() as u64,
+            px(params.view.width, params.view.height),
+            false,
+        ),
+        Job::Dust { params, mesh } => (
+            PipelineKind::Dust,
+            mesh.triangles.len() as u64,
+            px(params.view.width, params.view.height),
+            false,
+        ),
+        Job::Cloud { params, volume, .. } => (
+            PipelineKind::Cloud,
+            voxels(volume),
+            px(params.width, params.height),
+            false,
+        ),
+        // An edit solves on the volume; its image is the base version's view, counted in the
+        // voxel cost (an edit's second ambient field).
+        Job::CloudEdit { volume, .. } => (PipelineKind::CloudEdit, voxels(volume), 0, true),
+        // A recolour reads the base render's layers (`layers.bin`, 28–40 B per pixel) and
+        // writes an image: counted as one pixel per 16 B of the blob (an over-estimate).
+        Job::CloudRecolor { blob, .. } => {
+            (PipelineKind::CloudEdit, 0, blob.len() as u64 / 16, false)
+        }
+    }
+}
+
 /// The pipelines.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PipelineKind {

@@ -7,96 +7,92 @@
 //!    held whole;
 //! 2. an identical request already queued, running or done is answered from its record;
 //! 3. a full queue is answered 429 ([`ensure_queue_room`]) before anything is decoded;
-//! 4. the check reserves its input's size plus the most its decode can allocate
-//!    ([`crate::pipeline_set::PipelineSet::decode_cost`]) from the process's decode budget
-//!    ([`DecodeBudget`], `decode_budget_bytes`), waiting at most [`DECODE_WAIT`] and answering
-//!    429 with `Retry-After` otherwise; only then are the input's bytes read from the store and
-//!    decoded, on the blocking pool, and the reservation ends with the check.
+//! 4. the check reserves memory from the process's [`MemoryBudget`] (`memory_budget_bytes`,
+//!    shared with the running jobs) before the input's bytes are read from the store
+//!    ([`check_memory`]): the input's size plus the most its decode can allocate under the
+//!    limits ([`crate::pipeline_set::PipelineSet::decode_cost`]) when that much is free; else,
+//!    when at least [`MIN_PARTIAL`] is free, what is free, and the decode runs with the input
+//!    limits scaled down to it, so the decoders' header checks (sizes a file declares, checked
+//!    before any allocation) admit a small file at once and refuse a large one having allocated
+//!    nothing; a large one then waits for its worst case, at most [`CHECK_WAIT`], and is
+//!    answered 429 with `Retry-After` otherwise. The decode runs on the blocking pool and the
+//!    reservation ends with it;
+//! 5. the decoded job's estimated peak memory ([`crate::pipeline_set::Admitted::run_bytes`]) is
+//!    recorded on the job, for the worker to reserve before it starts it; a job estimated larger
+//!    than the whole budget is refused `413` ([`ensure_fits`]).
 //!
-//! Concurrent checks therefore never hold more than the budget, whatever the clients send. The
-//! job's own decode runs later inside the worker pool's bounded concurrency.
-//!
-//! The budget is a `tokio::sync::Semaphore` counting KiB (a fair queue: a large reservation is
-//! not starved by small ones). Rejected: tower's `ConcurrencyLimitLayer` / `LoadShedLayer` on the
-//! routes, which count requests, not bytes, and would also hold back cached submits and uploads
-//! that decode nothing.
+//! Concurrent checks and running jobs therefore never hold more than the budget, whatever the
+//! clients send. The job's own decode runs later inside the worker pool's bounded concurrency.
 
-use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::{OwnedSemaphorePermit, Semaphore};
-
-use super::AppState;
+use crate::budget::{MemoryBudget, Reservation};
 use crate::error::ApiError;
 
-/// How long a check waits for decode budget before the submission is answered 429: a few
-/// worst-case decodes (one to three seconds each at 8192²) may finish in that time, and no client
-/// is held longer than that.
-pub const DECODE_WAIT: Duration = Duration::from_secs(10);
+use super::AppState;
+
+/// How long a check waits for memory before the submission is answered 429: a few worst-case
+/// decodes (one to three seconds each at 8192²) may finish in that time, and no client is held
+/// longer than that.
+pub const CHECK_WAIT: Duration = Duration::from_secs(10);
+
+/// The least free memory a check decodes in with scaled-down limits (rather than waiting for its
+/// worst case): below it no input worth the try fits.
+pub const MIN_PARTIAL: u64 = 8 << 20;
 
 /// Seconds a client is told to wait (`Retry-After`) when the budget stayed taken.
 const RETRY_AFTER_SECS: u64 = 5;
 
-const KIB: u64 = 1024;
-
-/// The decode budget of one process.
-#[derive(Debug, Clone)]
-pub struct DecodeBudget {
-    permits: Arc<Semaphore>,
-    /// The budget in KiB (the semaphore's permits).
-    total_kib: u32,
-    wait: Duration,
-}
-
-/// A reservation of decode budget; returned when dropped.
-#[derive(Debug)]
-pub struct Reservation {
-    _permit: OwnedSemaphorePermit,
-}
-
-impl DecodeBudget {
-    /// A budget of `bytes` (rounded down to KiB, at least 1 KiB, at most 4 TiB); reservations
-    /// wait at most `wait`.
-    pub fn new(bytes: u64, wait: Duration) -> Self {
-        let total_kib = u32::try_from(bytes / KIB).unwrap_or(u32::MAX).max(1);
-        Self {
-            permits: Arc::new(Semaphore::new(total_kib as usize)),
-            total_kib,
-            wait,
+/// Memory for one check: the worst case (`None`: decode with the configured limits) or part of
+/// it (`Some(bytes)`: decode with the limits scaled to `bytes`; a `TooLarge` then means "wait
+/// for the worst case", [`reserve_worst`]).
+pub fn check_memory(
+    budget: &MemoryBudget,
+    worst: u64,
+    input_bytes: u64,
+) -> Option<(Reservation, Option<u64>)> {
+    if let Some(r) = budget.try_reserve(worst) {
+        return Some((r, None));
+    }
+    let free = budget.free_bytes();
+    if free >= input_bytes.saturating_add(MIN_PARTIAL) {
+        if let Some(r) = budget.try_reserve(free) {
+            let decode = r.bytes().saturating_sub(input_bytes);
+            return Some((r, Some(decode)));
         }
     }
+    None
+}
 
-    /// The budget in bytes.
-    pub fn total_bytes(&self) -> u64 {
-        u64::from(self.total_kib) * KIB
-    }
+/// Reserves a check's worst case, waiting at most [`CHECK_WAIT`]; a 429 with `Retry-After`
+/// when the budget stayed taken.
+pub async fn reserve_worst(budget: &MemoryBudget, worst: u64) -> Result<Reservation, ApiError> {
+    budget
+        .reserve_within(worst, CHECK_WAIT)
+        .await
+        .ok_or_else(|| ApiError::Overloaded {
+            detail: format!(
+                "the server is busy with other inputs and jobs (its memory budget of {} MiB is in \
+                 use and checking this input needs {} MiB of it); retry later",
+                budget.total_bytes() >> 20,
+                worst.min(budget.total_bytes()).div_ceil(1 << 20)
+            ),
+            retry_after: RETRY_AFTER_SECS,
+        })
+}
 
-    /// Bytes reserved now.
-    pub fn in_use_bytes(&self) -> u64 {
-        let free = u64::try_from(self.permits.available_permits()).unwrap_or(u64::MAX);
-        u64::from(self.total_kib).saturating_sub(free) * KIB
+/// 413 when a job's estimated peak memory exceeds the whole budget: no worker of this process
+/// could ever start it.
+pub fn ensure_fits(budget: &MemoryBudget, run_bytes: u64) -> Result<(), ApiError> {
+    if run_bytes > budget.total_bytes() {
+        return Err(ApiError::PayloadTooLarge(format!(
+            "running this job would take about {} MiB of memory, more than the server's memory \
+             budget of {} MiB (memory_budget_bytes); send a smaller input or output size",
+            run_bytes.div_ceil(1 << 20),
+            budget.total_bytes() >> 20
+        )));
     }
-
-    /// Reserves `bytes` (all of the budget when it is larger), waiting at most the budget's
-    /// wait; a 429 with `Retry-After` when the budget stayed taken.
-    pub async fn reserve(&self, bytes: u64) -> Result<Reservation, ApiError> {
-        let want = u32::try_from(bytes.div_ceil(KIB))
-            .unwrap_or(u32::MAX)
-            .clamp(1, self.total_kib);
-        match tokio::time::timeout(self.wait, self.permits.clone().acquire_many_owned(want)).await {
-            Ok(Ok(permit)) => Ok(Reservation { _permit: permit }),
-            // Timed out, or the semaphore closed (it never is).
-            _ => Err(ApiError::Overloaded {
-                detail: format!(
-                    "the server is checking other inputs (its decode budget of {} MiB is in use \
-                     and this input needs {} MiB of it); retry later",
-                    self.total_bytes() >> 20,
-                    (u64::from(want) * KIB) >> 20
-                ),
-                retry_after: RETRY_AFTER_SECS,
-            }),
-        }
-    }
+    Ok(())
 }
 
 /// 429 when the queue is full, so that a submission that would be refused anyway is refused
@@ -119,23 +115,27 @@ pub async fn ensure_queue_room(st: &AppState) -> Result<(), ApiError> {
 mod tests {
     use super::*;
 
-    #[tokio::test]
-    async fn reservations_add_up_to_the_budget_and_larger_ones_take_all_of_it() {
-        let b = DecodeBudget::new(10 << 20, Duration::from_millis(50));
-        let r1 = b.reserve(6 << 20).await.unwrap();
-        assert_eq!(b.in_use_bytes(), 6 << 20);
-        // 6 + 6 > 10: waits, then 429.
-        let e = b.reserve(6 << 20).await.unwrap_err();
-        assert!(matches!(e, ApiError::Overloaded { .. }), "{e:?}");
-        let r2 = b.reserve(4 << 20).await.unwrap();
-        assert_eq!(b.in_use_bytes(), 10 << 20);
-        drop((r1, r2));
-        assert_eq!(b.in_use_bytes(), 0);
-        // Larger than the budget: all of it.
-        let all = b.reserve(1 << 40).await.unwrap();
-        assert_eq!(b.in_use_bytes(), b.total_bytes());
-        assert!(b.reserve(1).await.is_err());
-        drop(all);
-        assert!(b.reserve(1).await.is_ok());
+    #[test]
+    fn a_check_takes_its_worst_case_or_what_is_free_or_nothing() {
+        let b = MemoryBudget::new(100 << 20);
+        // Free: the worst case, with the configured limits.
+        let (r, scaled) = check_memory(&b, 60 << 20, 1 << 20).unwrap();
+        assert_eq!((r.bytes(), scaled), (60 << 20, None));
+        // 40 MiB free: all of it, limits scaled to what is left after the input's bytes.
+        let (r2, scaled) = check_memory(&b, 60 << 20, 1 << 20).unwrap();
+        assert_eq!((r2.bytes(), scaled), (40 << 20, Some(39 << 20)));
+        drop(r2);
+        // Less than MIN_PARTIAL above the input free: nothing now.
+        let r3 = b.try_reserve(35 << 20).unwrap();
+        assert!(check_memory(&b, 60 << 20, 1 << 20).is_none());
+        drop((r, r3));
+    }
+
+    #[test]
+    fn a_job_larger_than_the_budget_is_413() {
+        let b = MemoryBudget::new(100 << 20);
+        assert!(ensure_fits(&b, 100 << 20).is_ok());
+        let e = ensure_fits(&b, (100 << 20) + 1).unwrap_err();
+        assert!(matches!(e, ApiError::PayloadTooLarge(_)), "{e:?}");
     }
 }

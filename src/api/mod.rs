@@ -13,7 +13,7 @@ mod submit;
 mod system;
 pub mod web;
 
-pub use admission::{DecodeBudget, DECODE_WAIT};
+pub use admission::CHECK_WAIT;
 pub use submit::{parse_submission, parse_submission_aux, Input};
 
 use std::sync::Arc;
@@ -40,8 +40,9 @@ pub struct AppState {
     pub jobs: Jobs,
     pub scenes: crate::scenes::Scenes,
     pub metrics: Metrics,
-    /// What the up-front input checks of submissions may decode at once (`api::admission`).
-    pub decodes: DecodeBudget,
+    /// The process's memory budget, shared by the up-front input checks (`api::admission`) and
+    /// the running jobs.
+    pub memory: crate::budget::MemoryBudget,
     /// Cancelled when the server begins shutting down (ends SSE streams, fails readiness).
     pub shutdown: CancellationToken,
 }

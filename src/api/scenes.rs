@@ -18,8 +18,7 @@ use super::extract::ApiPath;
 use super::jobs::prefer_wait;
 use super::strict_json::{self, StrictJsonError};
 use super::submit::{
-    describe_input, queue_job, read_body, reject_nulls, request_key, respond, store_input,
-    touch_asset,
+    admit_input, queue_job, read_body, reject_nulls, request_key, respond, store_input, touch_asset,
 };
 use super::AppState;
 use crate::error::ApiError;
@@ -129,7 +128,9 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     let validated = pipelines.params(RENDER, &Value::Object(raw))?;
     let canonical = object(validated.canonical(), "params")?;
     let asset = store_input(&st, input).await?;
-    let info = describe_input(&st, RENDER, &validated, &asset, "volume").await?;
+    let info = admit_input(&st, RENDER, &validated, &asset, &[], "volume")
+        .await?
+        .info;
     touch_asset(&st, &asset).await?;
     let mut state = Map::new();
     let mut input_opts = Map::new();
@@ -152,10 +153,13 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
             }
         }
     }
+    // The scene's volume; each render's and edit's job gets its own memory estimate
+    // ([`version_input`]).
     let volume = InputRef {
         asset: asset.id,
         filename: asset.filename,
         aux: Vec::new(),
+        memory: 0,
     };
     let scene = st
         .scenes
@@ -239,14 +243,14 @@ async fn ready_version(
         Some(n) => s.version(n).cloned(),
         None => s.latest().cloned(),
     };
-    let mut v = pick(&scene).ok_or_else(|| {
-        ApiError::InvalidParameter(ParamError::new(
+    // A version number naming no version is a missing resource (404, like an unknown scene);
+    // a scene with no version left to start from is a parameter problem (422).
+    let mut v = pick(&scene).ok_or_else(|| match n {
+        Some(n) => ApiError::NotFound(format!("{field}: scene {id} has no version {n}")),
+        None => ApiError::InvalidParameter(ParamError::new(
             field,
-            format!(
-                "scene {id} has no version {}",
-                n.map_or("ready".into(), |n| n.to_string())
-            ),
-        ))
+            format!("scene {id} has no ready version"),
+        )),
     })?;
     let mut scene = scene;
     if v.status == VersionStatus::Pending {
@@ -270,6 +274,31 @@ async fn ready_version(
                 .map_or(String::new(), |e| format!(": {}", e.detail))
         ))),
     }
+}
+
+/// A scene job's estimated peak memory (see `PipelineSet::run_cost`): the scene's volume (its
+/// `info.dims`) and the job's pixels (`width` × `height` of its canonical parameters; none for
+/// an edit, which solves on the volume). 413 when it exceeds the whole memory budget.
+fn scene_job_memory(
+    st: &AppState,
+    pipeline: &str,
+    scene: &SceneRecord,
+    params: &Value,
+) -> Result<u64, ApiError> {
+    let voxels = scene
+        .info
+        .get("dims")
+        .and_then(Value::as_array)
+        .map_or(0, |d| d.iter().filter_map(Value::as_u64).product());
+    let px = |k: &str| params.get(k).and_then(Value::as_u64).unwrap_or(0);
+    let bytes = st.jobs.pipelines().run_cost(
+        pipeline,
+        voxels,
+        px("width").saturating_mul(px("height")),
+        pipeline == EDIT,
+    );
+    super::admission::ensure_fits(&st.memory, bytes)?;
+    Ok(bytes)
 }
 
 /// The job input of a scene version: the volume plus its ambient field, if any; and the key part
@@ -350,7 +379,8 @@ pub async fn render(
         .pipelines()
         .params(RENDER, &Value::Object(params))?
         .into_canonical();
-    let (input, key_input) = version_input(&scene, &v);
+    let (mut input, key_input) = version_input(&scene, &v);
+    input.memory = scene_job_memory(&st, RENDER, &scene, &params)?;
     let key = request_key(RENDER, &key_input, &params);
     let rec = match st.jobs.find_by_key(&key).await? {
         Some(rec) => rec,
@@ -526,6 +556,7 @@ pub async fn edit(
         .map_err(edit_field)?
         .into_canonical();
     let (mut input, key_input) = version_input(&scene, &base);
+    input.memory = scene_job_memory(&st, EDIT, &scene, &params)?;
     // (Not in the key: the blob only saves time, the version is the same with or without it.)
     if kind == "sun-color" {
         if let Some(blob) = layers_of(&st, &scene, &base, &body).await {

@@ -11,6 +11,9 @@ use std::fmt;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde_json::{Map, Number, Value};
 
+/// The largest integer every f64 up to it represents exactly (2^53).
+const MAX_EXACT: f64 = 9_007_199_254_740_992.0;
+
 /// Why a body is not one unambiguous JSON value.
 #[derive(Debug)]
 pub(crate) enum StrictJsonError {
@@ -94,6 +97,12 @@ impl<'de> Visitor<'de> for Seed<'_> {
     }
 
     fn visit_f64<E: de::Error>(self, v: f64) -> Result<Value, E> {
+        // JSON Schema counts `3.0` as an integer: an integral number (exact in an f64) becomes
+        // one, so integer fields (`width`, `version`, pixel coordinates) accept it, and number
+        // fields read the same value either way.
+        if v.fract() == 0.0 && v.abs() <= MAX_EXACT {
+            return Ok(Value::from(v as i64));
+        }
         Ok(Number::from_f64(v).map_or(Value::Null, Value::Number))
     }
 
@@ -159,6 +168,16 @@ mod tests {
         let strict = from_slice(text).unwrap();
         let plain: Value = serde_json::from_slice(text).unwrap();
         assert_eq!(strict, plain);
+    }
+
+    #[test]
+    fn integral_numbers_are_integers() {
+        let v = from_slice(br#"{"w": 3.0, "x": -0.0, "y": 2.5, "z": 1e300, "n": 4e15}"#).unwrap();
+        assert_eq!(v["w"].as_u64(), Some(3));
+        assert_eq!(v["x"].as_i64(), Some(0));
+        assert_eq!(v["y"].as_f64(), Some(2.5));
+        assert!(v["z"].is_f64());
+        assert_eq!(v["n"].as_u64(), Some(4_000_000_000_000_000));
     }
 
     #[test]

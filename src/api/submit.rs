@@ -23,8 +23,8 @@ use super::strict_json::{self, StrictJsonError};
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::{InputRef, SubmitError, Submitted};
-use crate::pipeline_set::Validated;
-use phenomena_engine::ParamError;
+use crate::pipeline_set::{Admitted, Validated};
+use phenomena_engine::{InputError, ParamError};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -118,14 +118,16 @@ pub async fn submit(
     // Admission before work: a full queue is refused before the input is decoded.
     admission::ensure_queue_room(&st).await?;
     // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed
-    // job; the decode runs within the decode budget.
-    describe_input(&st, pipeline, &params, &asset, part).await?;
+    // job; the decode runs within the memory budget, and a job too large for it is a 413.
+    let admitted = admit_input(&st, pipeline, &params, &asset, &[], part).await?;
+    admission::ensure_fits(&st.memory, admitted.run_bytes)?;
     touch_asset(&st, &asset).await?;
 
     let input = InputRef {
         asset: asset.id,
         filename: asset.filename,
         aux: Vec::new(),
+        memory: admitted.run_bytes,
     };
     submit_job(&st, pipeline, input, params.into_canonical(), key, wait).await
 }
@@ -156,29 +158,8 @@ async fn submit_with_named_inputs(
         return respond(st, rec, wait).await;
     }
     admission::ensure_queue_room(st).await?;
-    // The auxiliary bytes are held twice (as read and as the owned copy the check takes).
-    let size = aux_assets.iter().fold(asset.size, |n, (_, r)| {
-        n.saturating_add(r.size.saturating_mul(2))
-    });
-    let reservation = reserve_decode(st, pipeline, size, true).await?;
-    let bytes = st.jobs.store().read_blob(&asset.id).await?;
-    let mut aux_bytes = Vec::with_capacity(aux_assets.len());
-    for (name, rec) in &aux_assets {
-        let b = st.jobs.store().read_blob(&rec.id).await?;
-        aux_bytes.push((name.to_string(), b.to_vec()));
-    }
-    let p = params.clone();
-    let filename = asset.filename.clone();
-    let pipelines = st.jobs.pipelines().clone();
-    // The reservation moves into the decode: it ends when the decode does, even if the client
-    // goes away and this request is dropped meanwhile.
-    tokio::task::spawn_blocking(move || {
-        let _reservation = reservation;
-        pipelines.check_with_named_inputs(pipeline, &p, &bytes, filename.as_deref(), &aux_bytes)
-    })
-    .await
-    .map_err(blocking_err)?
-    .map_err(|(which, e)| ApiError::from_input(e, which.unwrap_or(part)))?;
+    let admitted = admit_input(st, pipeline, &params, &asset, &aux_assets, part).await?;
+    admission::ensure_fits(&st.memory, admitted.run_bytes)?;
     touch_asset(st, &asset).await?;
     let mut aux = Vec::with_capacity(aux_assets.len());
     for (name, rec) in aux_assets {
@@ -192,6 +173,7 @@ async fn submit_with_named_inputs(
         asset: asset.id,
         filename: asset.filename,
         aux,
+        memory: admitted.run_bytes,
     };
     submit_job(st, pipeline, input, params.into_canonical(), key, wait).await
 }
@@ -343,43 +325,63 @@ pub(super) async fn store_input(
     })
 }
 
-/// Reserves what checking `input_bytes` of input for `pipeline` may take from the decode budget
-/// (see `admission`): 429 with `Retry-After` when it stays in use.
-async fn reserve_decode(
-    st: &AppState,
-    pipeline: &str,
-    input_bytes: u64,
-    with_extra_input: bool,
-) -> Result<admission::Reservation, ApiError> {
-    let cost = st.jobs.pipelines().decode_cost(pipeline, with_extra_input);
-    st.decodes.reserve(input_bytes.saturating_add(cost)).await
-}
-
-/// Decodes the stored input on the blocking pool within the decode budget, mapping a corrupt,
-/// unsupported or oversize file to its 4xx (named after the input `part`), and describes it (see
-/// `PipelineSet::describe_input`). The input's bytes are read from the store only once the
-/// budget is reserved.
-pub(super) async fn describe_input(
+/// Decodes the stored input (with its auxiliary inputs `aux`) on the blocking pool within the
+/// memory budget (see `admission`), mapping a corrupt, unsupported or oversize file to its 4xx
+/// (named after the input `part`, or the auxiliary part at fault), and describes it with the
+/// job's estimated peak memory (see `PipelineSet::admit`). The bytes are read from the store
+/// only once the memory is reserved.
+pub(super) async fn admit_input(
     st: &AppState,
     pipeline: &'static str,
     params: &Validated,
     asset: &crate::store::assets::AssetRecord,
+    aux: &[(&'static str, crate::store::assets::AssetRecord)],
     part: &'static str,
-) -> Result<serde_json::Value, ApiError> {
-    let reservation = reserve_decode(st, pipeline, asset.size, false).await?;
-    let bytes = st.jobs.store().read_blob(&asset.id).await?;
-    let p = params.clone();
-    let filename = asset.filename.clone();
+) -> Result<Admitted, ApiError> {
     let pipelines = st.jobs.pipelines().clone();
-    // The reservation moves into the decode: it ends when the decode does, even if the client
-    // goes away and this request is dropped meanwhile.
-    tokio::task::spawn_blocking(move || {
-        let _reservation = reservation;
-        pipelines.describe_input(pipeline, &p, &bytes, filename.as_deref())
-    })
-    .await
-    .map_err(blocking_err)?
-    .map_err(|e| ApiError::from_input(e, part))
+    // The auxiliary bytes are held twice (as read and as the owned copy the decode takes).
+    let input_bytes = aux.iter().fold(asset.size, |n, (_, r)| {
+        n.saturating_add(r.size.saturating_mul(2))
+    });
+    let worst = input_bytes.saturating_add(pipelines.decode_cost(pipeline, !aux.is_empty()));
+    let mut first = admission::check_memory(&st.memory, worst, input_bytes);
+    loop {
+        let (reservation, decode_bytes) = match first.take() {
+            Some(r) => r,
+            None => (admission::reserve_worst(&st.memory, worst).await?, None),
+        };
+        let bytes = st.jobs.store().read_blob(&asset.id).await?;
+        let mut aux_bytes = Vec::with_capacity(aux.len());
+        for (name, rec) in aux {
+            let b = st.jobs.store().read_blob(&rec.id).await?;
+            aux_bytes.push((name.to_string(), b.to_vec()));
+        }
+        let p = params.clone();
+        let filename = asset.filename.clone();
+        let pipelines = pipelines.clone();
+        // The reservation moves into the decode: it ends when the decode does, even if the
+        // client goes away and this request is dropped meanwhile.
+        let result = tokio::task::spawn_blocking(move || {
+            let _reservation = reservation;
+            pipelines.admit(
+                pipeline,
+                &p,
+                &bytes,
+                filename.as_deref(),
+                &aux_bytes,
+                decode_bytes,
+            )
+        })
+        .await
+        .map_err(blocking_err)?;
+        match result {
+            Ok(admitted) => return Ok(admitted),
+            // Larger than what was free: refused from its header, nothing allocated; now wait
+            // for the worst case and decode with the configured limits.
+            Err((_, InputError::TooLarge { .. })) if decode_bytes.is_some() => continue,
+            Err((which, e)) => return Err(ApiError::from_input(e, which.unwrap_or(part))),
+        }
+    }
 }
 
 /// Refreshes the asset's retention clock.
@@ -570,7 +572,7 @@ pub(crate) fn sanitize_filename(name: &str) -> String {
 
 /// Fields where `null` is a value of its own ("none"), as `openapi.yaml` declares them: the cloud
 /// state's transparent background and the decoder options "from the file".
-const NULLABLE: &[&str] = &["background", "bounds", "dims"];
+const NULLABLE: &[&str] = &["background", "bounds", "dims", "kappa"];
 
 /// Refuses `null` anywhere in request parameters except the [`NULLABLE`] fields: the schema
 /// does not allow it, and "null means the default" would make two spellings of one request.

@@ -128,6 +128,7 @@ impl Embedded {
                 pool,
                 timeout: cfg.job_timeout,
                 metrics,
+                memory: cfg.memory.clone(),
             },
             hooks,
             cfg,

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use phenomena_engine::Control;
 
 use super::{CancelReason, JobError, JobRecord, Live, OutputRecord, StageTiming, Status};
+use crate::budget::{MemoryBudget, Reservation};
 use crate::error::Problem;
 use crate::metrics::Metrics;
 use crate::pipeline_set::{PipelineSet, RunError};
@@ -22,6 +23,8 @@ pub(crate) struct Executor {
     pub pool: rayon::ThreadPool,
     pub timeout: Duration,
     pub metrics: Metrics,
+    /// The process's memory budget: a job's estimated peak is reserved before it starts.
+    pub memory: MemoryBudget,
 }
 
 /// The pipeline's view of its job: forwards progress to the watch channel, measures each stage's
@@ -95,10 +98,74 @@ pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
     ));
 }
 
+/// Reserves the job's estimated peak memory ([`super::InputRef::memory`]) from the process's
+/// budget, waiting while other jobs and input checks hold it (a job larger than the budget was
+/// refused at submission; an older record's larger estimate takes the whole budget). `None`
+/// when the job is canceled, or the process shuts down, while it waits.
+async fn reserve_memory(ex: &Executor, rec: &JobRecord, live: &Live) -> Option<Reservation> {
+    let bytes = rec.input.memory;
+    if let Some(r) = ex.memory.try_reserve(bytes) {
+        return Some(r);
+    }
+    tracing::info!(job = %rec.id, mib = bytes >> 20, "job waits for memory");
+    let wait = ex.memory.reserve(bytes);
+    tokio::pin!(wait);
+    loop {
+        tokio::select! {
+            r = &mut wait => return r,
+            () = tokio::time::sleep(Duration::from_millis(100)) => {
+                if live.cancel.load(Ordering::Relaxed) != 0 {
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+/// A run that stopped at a cancellation: by its time limit (failed), by a graceful shutdown
+/// (back to the queue) or by the user (canceled).
+fn end_canceled(rec: &mut JobRecord, live: &Live, timeout: Duration) {
+    match live.reason() {
+        CancelReason::Timeout => {
+            rec.status = Status::Failed;
+            rec.error = Some(JobError::new(
+                Problem::TimeLimit,
+                format!(
+                    "the job ran longer than the limit of {} s",
+                    timeout.as_secs()
+                ),
+            ));
+            tracing::warn!(job = %rec.id, "job exceeded its time limit");
+        }
+        CancelReason::Shutdown => {
+            // A run cut short by a graceful shutdown is not held against the job: only
+            // attempts whose worker died count towards `max_attempts`.
+            rec.interrupted += 1;
+            rec.status = Status::Queued;
+            rec.progress = 0.0;
+            rec.stage = None;
+            tracing::info!(job = %rec.id, "job interrupted by shutdown; it stays queued");
+        }
+        CancelReason::User | CancelReason::None => {
+            rec.status = Status::Canceled;
+            tracing::info!(job = %rec.id, "job canceled");
+        }
+    }
+}
+
 /// Runs one job to its final record.
 pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
     let t0 = Instant::now();
     tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
+    // The run's estimated peak memory, reserved from the process's budget (shared with the
+    // API's input checks) before the input is read; held until the outputs are stored.
+    let _memory = match reserve_memory(ex, &rec, &live).await {
+        Some(r) => r,
+        None => {
+            end_canceled(&mut rec, &live, ex.timeout);
+            return rec;
+        }
+    };
     let read = async {
         let input = ex.store.read_blob(&rec.input.asset).await?;
         let mut aux = Vec::with_capacity(rec.input.aux.len());
@@ -211,32 +278,7 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                 }
             }
         }
-        Ok(Ok(Err(RunError::Canceled))) => match live.reason() {
-            CancelReason::Timeout => {
-                rec.status = Status::Failed;
-                rec.error = Some(JobError::new(
-                    Problem::TimeLimit,
-                    format!(
-                        "the job ran longer than the limit of {} s",
-                        timeout.as_secs()
-                    ),
-                ));
-                tracing::warn!(job = %rec.id, "job exceeded its time limit");
-            }
-            CancelReason::Shutdown => {
-                // A run cut short by a graceful shutdown is not held against the job: only
-                // attempts whose worker died count towards `max_attempts`.
-                rec.interrupted += 1;
-                rec.status = Status::Queued;
-                rec.progress = 0.0;
-                rec.stage = None;
-                tracing::info!(job = %rec.id, "job interrupted by shutdown; it stays queued");
-            }
-            CancelReason::User | CancelReason::None => {
-                rec.status = Status::Canceled;
-                tracing::info!(job = %rec.id, "job canceled");
-            }
-        },
+        Ok(Ok(Err(RunError::Canceled))) => end_canceled(&mut rec, &live, timeout),
         Ok(Ok(Err(RunError::Input(e)))) => {
             rec.status = Status::Failed;
             rec.error = Some(JobError::new(Problem::InvalidInput, e.to_string()));

@@ -64,6 +64,9 @@ pub struct JobsConfig {
     pub threads: usize,
     /// Starts after which a job that never finished is failed as poisoned. Default 3.
     pub max_attempts: u32,
+    /// The process's memory budget, shared with the API's input checks: a worker reserves a
+    /// job's estimated peak memory ([`InputRef::memory`]) before it starts it.
+    pub memory: crate::budget::MemoryBudget,
 }
 
 /// A backend that cannot answer (Redis unreachable, the data directory unwritable). The API maps

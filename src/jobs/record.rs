@@ -79,6 +79,14 @@ pub struct InputRef {
     pub filename: Option<String>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aux: Vec<AuxInput>,
+    /// The run's estimated peak memory in bytes, estimated when the input was admitted: what
+    /// a worker reserves from its process's memory budget before it starts the job (0: none).
+    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    pub memory: u64,
+}
+
+fn is_zero_u64(n: &u64) -> bool {
+    *n == 0
 }
 
 /// A named auxiliary input blob.

@@ -350,9 +350,11 @@ async fn bad_edits_and_scenes_are_clear_errors() {
         json!({"version": 9}),
     )
     .await;
-    assert_eq!(
-        problem(r, 422, "invalid-parameter").await["field"],
-        "version"
+    // A version number naming no version is a missing resource, like an unknown scene.
+    let p = problem(r, 404, "not-found").await;
+    assert!(
+        p["detail"].as_str().unwrap().contains("has no version 9"),
+        "{p}"
     );
     let r = post_json(&s, &format!("/v1/clouds/{id}/renders"), json!({"kappa": 3})).await;
     assert_eq!(problem(r, 422, "invalid-parameter").await["field"], "kappa");

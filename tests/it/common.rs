@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use phenomena::config::Config;
-use phenomena::pipeline_set::{EnginePipelines, PipelineSet, RunError, Validated};
+use phenomena::pipeline_set::{Admitted, EnginePipelines, PipelineSet, RunError, Validated};
 use phenomena_engine::{Control, InputError, Output, ParamError};
 use serde_json::{json, Value};
 
@@ -169,6 +169,24 @@ impl PipelineSet for WithSleepy {
     }
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
         self.0.aux_parts(name)
+    }
+    fn admit(
+        &self,
+        name: &str,
+        p: &Validated,
+        input: &[u8],
+        f: Option<&str>,
+        aux: &[(String, Vec<u8>)],
+        decode_bytes: Option<u64>,
+    ) -> Result<Admitted, (Option<&'static str>, InputError)> {
+        if name == "sleepy" {
+            Sleepy.admit(name, p, input, f, aux, decode_bytes)
+        } else {
+            self.0.admit(name, p, input, f, aux, decode_bytes)
+        }
+    }
+    fn run_cost(&self, name: &str, units: u64, pixels: u64, with_aux: bool) -> u64 {
+        self.0.run_cost(name, units, pixels, with_aux)
     }
     fn decode_cost(&self, name: &str, with_extra_input: bool) -> u64 {
         self.0.decode_cost(name, with_extra_input)

@@ -1,11 +1,14 @@
-//! The API held to `openapi.yaml` by Schemathesis (issue 9): every operation, every check
-//! (server errors, status codes, content types, response schemas and headers, negative data
-//! rejected, …), a bounded number of examples, zero failures allowed.
+//! The API held to `openapi.yaml` by Schemathesis (issues 9 and 20): every operation, every
+//! check (`--checks all`: server errors, status codes, content types, response schemas and
+//! headers, negative data rejected, positive data accepted with the statuses the configuration
+//! lists, …), a bounded number of examples, zero failures allowed.
 //!
 //! Needs the `st` command: `pip install schemathesis==4.32.5` (done by `.ci/run`). Alone:
 //! `cargo test --test it conformance -- --nocapture`; more examples with
-//! `PHENOMENA_ST_EXAMPLES=200`. The configuration (and why 415/422 count as acceptable answers
-//! to schema-valid requests) is `tests/conformance/schemathesis.toml`.
+//! `PHENOMENA_ST_EXAMPLES=200`. The configuration (and why 415/422 still count as acceptable
+//! answers to schema-valid requests) is `tests/conformance/schemathesis.toml`. Work in progress
+//! towards dropping them (issue 20): `tests/conformance/hooks.py`, not yet wired in (see
+//! RELIABILITY.md, "API conformance").
 
 use std::path::PathBuf;
 
@@ -16,6 +19,10 @@ use crate::common::Server;
 /// Examples per operation and phase in the default run: enough to exercise every schema branch
 /// once or twice in about a minute on 2 cores.
 const DEFAULT_EXAMPLES: &str = "25";
+
+/// The output pixel budget of the server under test (small: the point is the contract, not
+/// rendering 8192² images in the test profile).
+const MAX_PIXELS: u64 = 800 * 600;
 
 async fn upload(s: &Server, bytes: Vec<u8>, filename: &str) -> String {
     let resp = s
@@ -65,16 +72,16 @@ fn schemathesis_finds_no_failures() {
         .enable_all()
         .build()
         .unwrap();
-    // Small output budget and time limit: schemathesis picks sizes anywhere in the documented
-    // ranges, and the point here is the contract, not rendering 8192² images in the test profile.
+    // Small output budget (see MAX_PIXELS) and time limit.
     let s = rt.block_on(Server::start(|c| {
-        c.max_output_pixels = 800 * 600;
+        c.max_output_pixels = MAX_PIXELS;
         c.job_timeout_secs = 20;
         c.max_wait_secs = 2;
     }));
     let env = rt.block_on(async {
         let dem = upload(&s, example(&s, "dem.asc").await, "dem.asc").await;
         let volume = upload(&s, example(&s, "volume.npy").await, "volume.npy").await;
+
         let params = json!({"width": 64, "height": 48});
         let job = post_json(
             &s,
@@ -116,7 +123,7 @@ fn schemathesis_finds_no_failures() {
         .arg(root.join("tests/conformance/schemathesis.toml"))
         .args(["run", &s.url("/openapi.yaml")])
         .args(["--max-examples", &examples, "--workers", "1", "--seed", "1"])
-        .args(["--request-timeout", "60", "--no-color"])
+        .args(["--checks", "all", "--request-timeout", "60", "--no-color"])
         .envs(env)
         .output()
         .expect("schemathesis (`st`) is needed: pip install schemathesis==4.32.5");

@@ -383,3 +383,42 @@ async fn a_multipart_input_is_streamed_to_the_store_as_an_asset() {
     let body = problem(r, 400, "bad-request").await;
     assert_eq!(body["field"], "data", "{body}");
 }
+
+/// One memory budget per process (issue 20): a job's estimated peak memory is recorded on the job
+/// (`input.memory`), within the budget; a job estimated above the whole budget is 413 at
+/// submission, naming the budget, and is never queued.
+#[tokio::test]
+async fn a_job_larger_than_the_memory_budget_is_413_and_one_within_it_runs() {
+    const BUDGET: u64 = 48 << 20;
+    let s = Server::start(|c| c.memory_budget_bytes = BUDGET).await;
+    let dem = s
+        .client
+        .get(s.url("/v1/examples/dem.asc"))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap()
+        .to_vec();
+    let small = json!({"width": 320, "height": 240, "samples": 2});
+    let r = s
+        .submit("snow-terrain", "dem", small, dem.clone(), "dem.asc")
+        .await;
+    assert_eq!(r.status().as_u16(), 202);
+    let job: Value = r.json().await.unwrap();
+    let memory = job["input"]["memory"].as_u64().expect("an estimate");
+    // At least the output image's pixels at 32 B each, at most the budget.
+    assert!((320 * 240 * 32..=BUDGET).contains(&memory), "{job}");
+    let done = s.wait_done(job["id"].as_str().unwrap()).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+
+    // 4096² pixels at 32 B each is 512 MiB: over the budget whatever the DEM.
+    let big = json!({"width": 4096, "height": 4096});
+    let r = s.submit("snow-terrain", "dem", big, dem, "dem.asc").await;
+    let body = problem(r, 413, "too-large").await;
+    let detail = body["detail"].as_str().unwrap();
+    assert!(detail.contains("memory budget of 48 MiB"), "{detail}");
+    let list = s.get_json("/v1/jobs").await;
+    assert_eq!(list["jobs"].as_array().unwrap().len(), 1, "{list}");
+}

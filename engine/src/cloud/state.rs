@@ -145,21 +145,7 @@ impl CloudState {
     pub(crate) fn from_wire(w: WireState) -> Result<Self, ParamError> {
         let d = Self::default();
         let sun_direction = match (w.sun_direction, w.sun_azimuth_deg, w.sun_elevation_deg) {
-            (Some(s), None, None) => {
-                let n = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
-                if !(n.is_finite() && n > 1e-9) {
-                    return Err(ParamError::new(
-                        "sun_direction",
-                        "must be a finite, non-zero vector",
-                    ));
-                }
-                // Already unit (e.g. the canonical form read back): kept bit for bit.
-                if (n - 1.0).abs() < 1e-12 {
-                    s
-                } else {
-                    s.map(|x| x / n)
-                }
-            }
+            (Some(s), None, None) => crate::params::unit_vector("sun_direction", s)?,
             (None, None, None) => d.sun_direction,
             (None, Some(az), Some(el)) => {
                 let az = range("sun_azimuth_deg", Some(az), 0.0, 0.0, 360.0)?;

@@ -39,7 +39,7 @@ pub struct WireParams {
     pub shadows: Option<bool>,
     pub stickiness: Option<f32>,
     pub slipperiness: Option<f32>,
-    pub dust_source: Option<[f32; 3]>,
+    pub dust_source: Option<[f64; 3]>,
     pub exposure: Option<bool>,
     pub exposure_rays: Option<u32>,
     pub shells: Option<u32>,
@@ -118,13 +118,11 @@ pub struct DustParams {
     pub close_up: bool,
 }
 
-fn unit3(field: &str, v: Option<[f32; 3]>, default: [f32; 3]) -> Result<[f32; 3], ParamError> {
-    let v = v.unwrap_or(default);
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if !(l.is_finite() && l > 1e-6) {
-        return Err(ParamError::new(field, "must be a finite, non-zero vector"));
+fn unit3(field: &str, v: Option<[f64; 3]>, default: [f32; 3]) -> Result<[f32; 3], ParamError> {
+    match v {
+        Some(v) => Ok(crate::params::unit_vector(field, v)?.map(|x| x as f32)),
+        None => Ok(default),
     }
-    Ok([v[0] / l, v[1] / l, v[2] / l])
 }
 
 impl DustParams {

@@ -11,4 +11,4 @@ mod wire;
 pub use camera::{camera_spec, CameraSpec, OrbitDefaults, WireCamera};
 pub use color::Color;
 pub use mesh_view::{MeshView, MeshViewDefaults, WireMeshView};
-pub use wire::{deserialize_params, image_size, range, Limits};
+pub use wire::{deserialize_params, image_size, range, unit_vector, Limits};

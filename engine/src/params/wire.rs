@@ -88,3 +88,53 @@ pub fn image_size(
     }
     Ok((w, h))
 }
+
+/// A direction given as a vector (`sun_direction`, `dust_source`), normalised: any finite vector
+/// with a non-zero component (what the OpenAPI schema states: `contains` a non-zero number).
+/// The length is taken after scaling by the largest component, so neither huge nor tiny
+/// components overflow or underflow. A vector already of unit length (the canonical form read
+/// back) is kept bit for bit.
+pub fn unit_vector(field: &str, v: [f64; 3]) -> Result<[f64; 3], ParamError> {
+    let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if !m.is_finite() || m == 0.0 {
+        return Err(ParamError::new(
+            field,
+            "must be a finite vector with a non-zero component",
+        ));
+    }
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if (n - 1.0).abs() < 1e-12 {
+        return Ok(v);
+    }
+    let s = v.map(|x| x / m);
+    let l = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+    Ok(s.map(|x| x / l))
+}
+
+#[cfg(test)]
+mod unit_vector_tests {
+    use super::unit_vector;
+
+    #[test]
+    fn any_vector_with_a_non_zero_component_normalises_and_zero_is_refused() {
+        for v in [
+            [3.0, 0.0, 4.0],
+            [1e300, 1e300, 0.0],
+            [5e-324, 0.0, 0.0],
+            [0.0, -2.0, 0.0],
+        ] {
+            let u = unit_vector("d", v).unwrap();
+            let l = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+            assert!((l - 1.0).abs() < 1e-12, "{v:?} -> {u:?}");
+            for (a, b) in u.iter().zip(v) {
+                assert_eq!(
+                    a.signum() * f64::from(u8::from(*a != 0.0)),
+                    b.signum() * f64::from(u8::from(b != 0.0))
+                );
+            }
+        }
+        assert_eq!(unit_vector("d", [0.6, 0.8, 0.0]).unwrap(), [0.6, 0.8, 0.0]);
+        let e = unit_vector("dust_source", [0.0, -0.0, 0.0]).unwrap_err();
+        assert_eq!(e.field, "dust_source");
+    }
+}

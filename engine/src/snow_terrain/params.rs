@@ -336,7 +336,14 @@ impl SnowTerrainParams {
                 let mut obj = v.clone();
                 if let Some(m) = obj.as_object_mut() {
                     m.remove("sweep");
-                    m.insert(sweep.param.clone(), serde_json::json!(value));
+                    // An integral value goes in as an integer, so that integer parameters
+                    // (`smooth_iterations`, `tsa_window`, …) can be swept too.
+                    let value = if value.fract() == 0.0 && value.abs() < 9.0e15 {
+                        serde_json::json!(*value as i64)
+                    } else {
+                        serde_json::json!(value)
+                    };
+                    m.insert(sweep.param.clone(), value);
                 }
                 let w: WireParams = crate::params::deserialize_params(&obj)
                     .map_err(|e| ParamError::new(format!("sweep.values[{i}]"), e.detail))?;

@@ -183,6 +183,7 @@ impl RedisJobs {
                     pool,
                     timeout: cfg.job_timeout,
                     metrics,
+                    memory: cfg.memory.clone(),
                 },
                 settings,
                 cfg,

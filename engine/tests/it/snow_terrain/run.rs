@@ -151,6 +151,30 @@ fn sweep_adds_a_contact_sheet() {
     assert!(a < b && b < c, "{a} {b} {c}");
 }
 
+/// An integer parameter can be swept (the sweep's values are numbers; an integral one goes in
+/// as an integer), and a fractional value for it is refused naming the value.
+#[test]
+fn integer_parameters_can_be_swept() {
+    let l = Limits::default();
+    let p = SnowTerrainParams::from_json(
+        &json!({"sweep": {"param": "smooth_iterations", "values": [0, 3.0, 12]}}),
+        &l,
+    )
+    .unwrap();
+    let its: Vec<_> = p
+        .sweep_runs
+        .iter()
+        .map(|r| r.descriptor.smooth_iterations)
+        .collect();
+    assert_eq!(its, [Some(0), Some(3), Some(12)]);
+    let e = SnowTerrainParams::from_json(
+        &json!({"sweep": {"param": "tsa_window", "values": [1, 2.5]}}),
+        &l,
+    )
+    .unwrap_err();
+    assert_eq!(e.field, "sweep.values[1]", "{e}");
+}
+
 #[test]
 fn bad_sweeps_and_params_name_the_field() {
     let l = Limits::default();
