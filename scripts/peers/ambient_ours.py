@@ -3,7 +3,7 @@
 starts `phenomena serve` on 127.0.0.1 (a port the OS picks, a fresh data directory), creates a
 cloud scene from VOLUME.npy (`POST /v1/clouds`), paints one ambient dab — a 9-pixel-radius
 stroke at the middle of a 400×300 view, `#ff4020`, the benchmark `ambient_edit_*`'s stroke —
-(`POST /v1/clouds/{id}/edits/ambient`, `Prefer: wait`), checks that the new version succeeded,
+(`POST /v1/clouds/{id}/edits/ambient`, `Prefer: wait`), checks that the new version is `ready`,
 and stops the server.
 
     python3 scripts/peers/ambient_ours.py PHENOMENA_BIN VOLUME.npy [TIMES.json]
@@ -23,6 +23,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import urllib.request
 
@@ -39,17 +40,19 @@ def main():
     times = {}
     server = subprocess.Popen(
         [binary, "serve", "--bind", "127.0.0.1:0", "--data-dir", data_dir],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
         env=dict(os.environ, PHENOMENA_LOG="info"))
     try:
         port = None
-        for line in server.stderr:
+        # The server logs to stdout; read it until it says where it listens, then drain it.
+        for line in server.stdout:
             m = re.search(r"listening.*?127\.0\.0\.1:(\d+)", line)
             if m:
                 port = int(m.group(1))
                 break
         if port is None:
             sys.exit("the server did not say where it listens")
+        threading.Thread(target=lambda: [None for _ in server.stdout], daemon=True).start()
         base = f"http://127.0.0.1:{port}"
         t0 = time.perf_counter()
         boundary = "peers0boundary"
@@ -67,8 +70,13 @@ def main():
         t0 = time.perf_counter()
         v = request(f"{base}/v1/clouds/{scene['id']}/edits/ambient", json.dumps(edit).encode(),
                     {"Content-Type": "application/json", "Prefer": "wait=600"})
+        # `Prefer: wait` is capped by the server (60 s by default): poll past it.
+        while v.get("status") in ("pending", "running"):
+            time.sleep(0.05)
+            sc = request(f"{base}/v1/clouds/{scene['id']}")
+            v = next(x for x in sc["versions"] if x["version"] == v["version"])
         times["edit"] = time.perf_counter() - t0
-        if v.get("status") != "succeeded":
+        if v.get("status") != "ready":
             sys.exit(f"the ambient edit did not succeed: {json.dumps(v)[:500]}")
     finally:
         server.terminate()
