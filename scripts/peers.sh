@@ -5,7 +5,8 @@
 # runs (A B A B …: ours, peer, ours, peer; the ratio is taken pair by pair, so a drift of the
 # machine's speed hits both sides of a pair alike; scripts/peers/abtime.py).
 #
-#   scripts/peers.sh                      # the full table (about 25 min on 2 idle cores)
+#   scripts/peers.sh                      # the full table (about 30 min at load 4–6 with
+#                                         # PEERS_RUNS=3; the clouds row's time not measured)
 #   PEERS_QUICK=1 scripts/peers.sh        # small inputs, 3 runs: checks that every row works
 #   PEERS_ONLY=snow,descriptor scripts/peers.sh
 #

@@ -23,6 +23,10 @@ Not done here, done by ours (so the comparison favours this peer): the sun corre
 the statistics and report, and the deflate-compressed GeoTIFF with the georeferencing (numpy
 has no GeoTIFF writer; this writes raw rows). The input is raw float32 rows (`gdal_translate -of
 ENVI` of the same GeoTIFF ours reads): numpy has no GeoTIFF reader either.
+
+Checked (2026-12-03, the 1024² input): with ours' sun term off (`--set sun_spread_deg=0`) this
+map differs from our `snow_cover.tif` by 0.0005 on average, by more than 0.01 in 0.08 % of the
+cells (float evaluation order, amplified by TSA).
 """
 
 import json
