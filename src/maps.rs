@@ -11,6 +11,8 @@ use std::sync::{Arc, Mutex};
 use bytes::Bytes;
 use phenomena_engine::params::Limits;
 use phenomena_engine::snow_terrain::tiles::{self, Layer, MapError, MapSource};
+use phenomena_engine::snow_terrain::SnowTerrainParams;
+use phenomena_engine::ParamError;
 
 use crate::store::maps::{tile_key, MapRecord};
 use crate::store::{Store, StoreError};
@@ -64,6 +66,12 @@ impl Maps {
             .thread_name(|i| format!("maps-{i}"))
             .build()?;
         let permits = tokio::sync::Semaphore::new(pool.current_num_threads().max(1));
+        // Tiles are at most 512² pixels whatever `width` and `height` say (they shape only
+        // `render.png`), so the output limit does not apply to a map's parameters.
+        let limits = Limits {
+            max_output_pixels: u64::MAX,
+            ..limits
+        };
         Ok(Self {
             inner: Arc::new(Inner {
                 store,
@@ -77,6 +85,13 @@ impl Maps {
 
     pub fn store(&self) -> &Store {
         &self.inner.store
+    }
+
+    /// Validates wire snow-terrain parameters for a map: the canonical JSON (defaults filled,
+    /// what the map id hashes).
+    pub fn params(&self, raw: &serde_json::Value) -> Result<serde_json::Value, ParamError> {
+        let p = SnowTerrainParams::from_json(raw, &self.inner.limits)?;
+        serde_json::to_value(&p).map_err(|e| ParamError::new("params", e.to_string()))
     }
 
     /// Runs `f` on the map pool and waits for it.

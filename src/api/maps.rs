@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 
 use super::extract::ApiPath;
-use super::submit::{describe_input, read_body, reject_nulls, request_key, store_input};
+use super::submit::{read_body, reject_nulls, request_key, store_input};
 use super::AppState;
 use crate::error::ApiError;
 use crate::maps::MapsError;
@@ -92,30 +92,27 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     }
     let (raw, input) = read_body(&st, req, "dem").await?;
     reject_nulls(&raw, "")?;
-    let validated = st.jobs.pipelines().params(PIPELINE, &raw)?;
+    let canonical = st.maps.params(&raw)?;
     let asset = store_input(&st, input).await?;
-    let id = request_key("maps", &asset.id, validated.canonical());
+    let id = request_key("maps", &asset.id, &canonical);
     let store = st.maps.store().clone();
     let (status, rec) = match store.get_map(&id).await? {
         Some(rec) => (StatusCode::OK, rec),
         None => {
-            // The decode budget bounds the DEMs held at once, as for jobs.
-            describe_input(&st, PIPELINE, &validated, &asset, "dem").await?;
+            // The DEM is decoded within the decode budget, as a job's input check is: a
+            // corrupt, unsupported or oversize file is a 4xx before anything is kept.
+            let cost = st.jobs.pipelines().decode_cost(PIPELINE, false);
+            let _reservation = st.decodes.reserve(asset.size.saturating_add(cost)).await?;
             let bytes = store.read_blob(&asset.id).await?;
             let src = st
                 .maps
-                .prepare(
-                    &id,
-                    bytes,
-                    asset.filename.clone(),
-                    validated.canonical().clone(),
-                )
+                .prepare(&id, bytes, asset.filename.clone(), canonical.clone())
                 .await?;
             let rec = MapRecord {
                 id: id.clone(),
                 asset: asset.id.clone(),
                 filename: asset.filename.clone(),
-                params: validated.into_canonical(),
+                params: canonical,
                 info: src.info().clone(),
                 created_at: chrono::Utc::now(),
             };
