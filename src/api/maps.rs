@@ -80,7 +80,10 @@ impl From<MapRecord> for MapView {
 }
 
 fn tile_template(base: &str, id: &str, layer: Layer) -> String {
-    format!("{base}/v1/maps/{id}/tiles/{}/{{z}}/{{x}}/{{y}}.png", layer.name())
+    format!(
+        "{base}/v1/maps/{id}/tiles/{}/{{z}}/{{x}}/{{y}}.png",
+        layer.name()
+    )
 }
 
 /// `POST /v1/maps`: JSON `{"asset": "<sha256>", "params": {…}}` (or multipart with a `params`

@@ -114,7 +114,10 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/maps/{id}", get(maps::get))
         .route("/v1/maps/{id}/tilejson.json", get(maps::tilejson))
         // `{file}` is `{y}.png` (the router has no parameters with a suffix).
-        .route("/v1/maps/{id}/tiles/{layer}/{z}/{x}/{file}", get(maps::tile));
+        .route(
+            "/v1/maps/{id}/tiles/{layer}/{z}/{x}/{file}",
+            get(maps::tile),
+        );
     for name in state.jobs.pipelines().names() {
         router = router.route(
             &format!("/v1/{name}"),

@@ -93,7 +93,10 @@ async fn upload(s: &Server, rel: &str) -> String {
 
 /// The tile (x, y) at zoom z holding the map's centre.
 fn centre_tile(tj: &Value, z: u8) -> (u64, u64) {
-    let (lon, lat) = (tj["center"][0].as_f64().unwrap(), tj["center"][1].as_f64().unwrap());
+    let (lon, lat) = (
+        tj["center"][0].as_f64().unwrap(),
+        tj["center"][1].as_f64().unwrap(),
+    );
     let (mx, my) = lonlat_to_mercator(lon, lat);
     let (px, py) = mercator_to_pixel(z, 256, mx, my);
     ((px / 256.0) as u64, (py / 256.0) as u64)
@@ -146,14 +149,20 @@ async fn a_dem_is_served_as_a_web_map() {
     assert_ne!(r.json::<Value>().await.unwrap()["id"], json!(id));
     let r = s.client.get(s.url(&location)).send().await.unwrap();
     assert_eq!(r.status(), 200);
-    assert_eq!(checked(&spec, "get", "/v1/maps/{id}", r).await["id"], json!(id));
+    assert_eq!(
+        checked(&spec, "get", "/v1/maps/{id}", r).await["id"],
+        json!(id)
+    );
 
     // TileJSON 3.0.0, for the default layer and an elevation layer.
     let validator = jsonschema::validator_for(&tilejson_schema()).unwrap();
     let tj_path = format!("/v1/maps/{id}/tilejson.json");
     let r = s.client.get(s.url(&tj_path)).send().await.unwrap();
     assert_eq!(r.status(), 200);
-    assert!(r.headers()["cache-control"].to_str().unwrap().contains("max-age"));
+    assert!(r.headers()["cache-control"]
+        .to_str()
+        .unwrap()
+        .contains("max-age"));
     let tj = checked(&spec, "get", "/v1/maps/{id}/tilejson.json", r).await;
     let errors: Vec<String> = validator.iter_errors(&tj).map(|e| e.to_string()).collect();
     assert!(errors.is_empty(), "{errors:?}\n{tj}");
@@ -164,12 +173,23 @@ async fn a_dem_is_served_as_a_web_map() {
         template,
         s.url(&format!("/v1/maps/{id}/tiles/relief/{{z}}/{{x}}/{{y}}.png"))
     );
-    let b: Vec<f64> = tj["bounds"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let b: Vec<f64> = tj["bounds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     // Olinda, Pernambuco: about 34.9° W, 8.0° S; 111 cells of 90 m ≈ 0.09°.
     assert!(b[0] < b[2] && b[1] < b[3], "{b:?}");
-    assert!((b[0] + 34.9).abs() < 0.2 && (b[3] + 7.95).abs() < 0.2, "{b:?}");
+    assert!(
+        (b[0] + 34.9).abs() < 0.2 && (b[3] + 7.95).abs() < 0.2,
+        "{b:?}"
+    );
     assert!((b[2] - b[0] - 0.09).abs() < 0.02, "{b:?}");
-    let (minzoom, maxzoom) = (tj["minzoom"].as_u64().unwrap(), tj["maxzoom"].as_u64().unwrap());
+    let (minzoom, maxzoom) = (
+        tj["minzoom"].as_u64().unwrap(),
+        tj["maxzoom"].as_u64().unwrap(),
+    );
     // 90 m cells: zoom 11 has 75 m pixels at 8° S, zoom 10 150 m.
     assert_eq!(maxzoom, 11);
     assert!(minzoom <= maxzoom && minzoom >= 5, "{minzoom}");
@@ -182,7 +202,10 @@ async fn a_dem_is_served_as_a_web_map() {
     let tjr = checked(&spec, "get", "/v1/maps/{id}/tilejson.json", r).await;
     assert!(validator.is_valid(&tjr), "{tjr}");
     assert_eq!(tjr["encoding"], "mapbox");
-    assert!(tjr["tiles"][0].as_str().unwrap().ends_with("terrain-rgb/{z}/{x}/{y}.png?tile_size=512"));
+    assert!(tjr["tiles"][0]
+        .as_str()
+        .unwrap()
+        .ends_with("terrain-rgb/{z}/{x}/{y}.png?tile_size=512"));
     let r = s
         .client
         .get(s.url(&format!("{tj_path}?layer=terrarium")))
@@ -206,14 +229,37 @@ async fn a_dem_is_served_as_a_web_map() {
         let opaque = img.pixels().filter(|p| p[3] > 0).count();
         assert!(opaque > 0, "{layer}: nothing drawn");
     }
-    let r = s.client.get(tile("relief", z, x, y, "?tile_size=512")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("relief", z, x, y, "?tile_size=512"))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 200);
     assert_eq!(decode(&r.bytes().await.unwrap()).dimensions(), (512, 512));
 
     // The elevation encodings decode to the same elevations within their steps, in the DEM's
     // range (−1 … 88 m).
-    let rgb = decode(&s.client.get(tile("terrain-rgb", z, x, y, "")).send().await.unwrap().bytes().await.unwrap());
-    let ter = decode(&s.client.get(tile("terrarium", z, x, y, "")).send().await.unwrap().bytes().await.unwrap());
+    let rgb = decode(
+        &s.client
+            .get(tile("terrain-rgb", z, x, y, ""))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap(),
+    );
+    let ter = decode(
+        &s.client
+            .get(tile("terrarium", z, x, y, ""))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap(),
+    );
     let mut n = 0;
     for (a, b) in rgb.pixels().zip(ter.pixels()) {
         assert_eq!(a[3], b[3]);
@@ -230,9 +276,17 @@ async fn a_dem_is_served_as_a_web_map() {
 
     // Cached: the tile is in the store, the second answer has the same ETag, and
     // If-None-Match gets 304 with no body.
-    let r = s.client.get(tile("snow", z, x, y, "")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, ""))
+        .send()
+        .await
+        .unwrap();
     let etag = r.headers()["etag"].to_str().unwrap().to_string();
-    assert!(r.headers()["cache-control"].to_str().unwrap().contains("max-age"));
+    assert!(r.headers()["cache-control"]
+        .to_str()
+        .unwrap()
+        .contains("max-age"));
     let body = r.bytes().await.unwrap();
     assert_eq!(etag, format!("\"{}\"", phenomena::store::sha256_hex(&body)));
     let cached = s
@@ -260,14 +314,34 @@ async fn a_dem_is_served_as_a_web_map() {
     assert_eq!(r.status(), 200);
 
     // Off the DEM: 204. Outside the tile matrix, an unknown layer or map: 404.
-    let r = s.client.get(tile("snow", z, x + 50, y, "")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", z, x + 50, y, ""))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 204);
     assert!(r.bytes().await.unwrap().is_empty());
-    let r = s.client.get(tile("snow", 3, 8, 0, "")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", 3, 8, 0, ""))
+        .send()
+        .await
+        .unwrap();
     problem(r, 404, "not-found").await;
-    let r = s.client.get(tile("snowy", z, x, y, "")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snowy", z, x, y, ""))
+        .send()
+        .await
+        .unwrap();
     problem(r, 404, "not-found").await;
-    let r = s.client.get(tile("snow", 25, 0, 0, "")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", 25, 0, 0, ""))
+        .send()
+        .await
+        .unwrap();
     problem(r, 404, "not-found").await;
     let r = s
         .client
@@ -276,9 +350,19 @@ async fn a_dem_is_served_as_a_web_map() {
         .await
         .unwrap();
     problem(r, 404, "not-found").await;
-    let r = s.client.get(tile("snow", z, x, y, "?tile_size=300")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, "?tile_size=300"))
+        .send()
+        .await
+        .unwrap();
     problem(r, 400, "bad-request").await;
-    let r = s.client.get(tile("snow", z, x, y, "?zoom=3")).send().await.unwrap();
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, "?zoom=3"))
+        .send()
+        .await
+        .unwrap();
     problem(r, 400, "bad-request").await;
     let r = s
         .client
@@ -311,7 +395,10 @@ async fn maps_refuse_what_they_cannot_place() {
         .send()
         .await
         .unwrap();
-    let asset = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_string();
+    let asset = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
     let r = s
         .client
         .post(s.url("/v1/maps"))
@@ -360,5 +447,8 @@ async fn maps_refuse_what_they_cannot_place() {
     // Jacksboro: west −84.41375, north 36.44625, 403 × 344 cells of 3″.
     assert!((b[0].as_f64().unwrap() + 84.41375).abs() < 1e-9, "{b}");
     assert!((b[3].as_f64().unwrap() - 36.44625).abs() < 1e-9, "{b}");
-    assert!((b[2].as_f64().unwrap() - (-84.41375 + 403.0 * 3.0 / 3600.0)).abs() < 1e-9, "{b}");
+    assert!(
+        (b[2].as_f64().unwrap() - (-84.41375 + 403.0 * 3.0 / 3600.0)).abs() < 1e-9,
+        "{b}"
+    );
 }

@@ -91,8 +91,9 @@ impl CrsTransform {
             (Some(code), _) => {
                 let c = u16::try_from(code).map_err(|_| CrsError::Unsupported(code))?;
                 let dem = Proj::from_epsg_code(c).map_err(|_| CrsError::Unsupported(code))?;
-                let wgs = Proj::from_proj_string("+proj=longlat +ellps=WGS84 +datum=WGS84 +no_defs")
-                    .map_err(|_| CrsError::Unsupported(code))?;
+                let wgs =
+                    Proj::from_proj_string("+proj=longlat +ellps=WGS84 +datum=WGS84 +no_defs")
+                        .map_err(|_| CrsError::Unsupported(code))?;
                 Ok(Self {
                     proj: Some((dem, wgs)),
                 })
@@ -160,7 +161,10 @@ mod tests {
         // Olinda (shared/data: olinda_dem_utm25s.tif, west 288776.25, north 9120760.75), UTM 25S.
         let t = CrsTransform::new(Some(32725), false).unwrap();
         let (lon, lat) = t.to_lonlat(288_776.25, 9_120_760.75).unwrap();
-        assert!((lon + 34.9).abs() < 0.1 && (lat + 7.95).abs() < 0.1, "{lon} {lat}");
+        assert!(
+            (lon + 34.9).abs() < 0.1 && (lat + 7.95).abs() < 0.1,
+            "{lon} {lat}"
+        );
         let (x, y) = t.from_lonlat(lon, lat).unwrap();
         assert!((x - 288_776.25).abs() < 1e-3 && (y - 9_120_760.75).abs() < 1e-3);
     }

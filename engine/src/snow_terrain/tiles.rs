@@ -25,12 +25,12 @@
 use rayon::prelude::*;
 
 use super::descriptor::{self, DescriptorParams};
+use super::params::SnowTerrainParams;
 use crate::error::{InputError, ParamError};
 use crate::formats::dem::{decode_dem, DemOptions};
-use crate::params::Limits;
-use super::params::SnowTerrainParams;
 use crate::geom::mercator::{self, CrsError, CrsTransform};
 use crate::geom::Dem;
+use crate::params::Limits;
 use crate::render::image::{linear_to_srgb8, srgb8_to_linear, RgbaImage};
 
 /// Pixels between the nodes at which pixel positions are reprojected exactly.
@@ -257,7 +257,12 @@ fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsEr
     let [x0, a, y0, e] = t;
     let (w, h) = (dem.width as f64, dem.height as f64);
     // The outline, 32 points a side: a projected grid's edges are curves in WGS 84.
-    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     const K: usize = 32;
     for i in 0..=K {
         let f = i as f64 / K as f64;
@@ -273,12 +278,13 @@ fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsEr
     b[3] = b[3].clamp(-lim, lim);
     let lat_c = (b[1] + b[3]) / 2.0;
     let cell = (dem.dx * dem.dy).abs().sqrt().max(1e-6);
-    let zoom_for = |metres_per_pixel: f64| {
-        (mercator::ground_resolution(0, lat_c) / metres_per_pixel).log2()
-    };
+    let zoom_for =
+        |metres_per_pixel: f64| (mercator::ground_resolution(0, lat_c) / metres_per_pixel).log2();
     let maxzoom = zoom_for(cell).ceil().clamp(0.0, f64::from(MAX_ZOOM)) as u8;
     let extent = (w * dem.dx.abs()).max(h * dem.dy.abs()).max(1e-6);
-    let minzoom = (zoom_for(extent / 256.0).floor().clamp(0.0, f64::from(maxzoom))) as u8;
+    let minzoom = (zoom_for(extent / 256.0)
+        .floor()
+        .clamp(0.0, f64::from(maxzoom))) as u8;
     let crs_name = match dem.georef.epsg {
         Some(code) => format!("EPSG:{code}"),
         None => "EPSG:4326".to_string(),
@@ -317,8 +323,7 @@ impl Nodes {
                 let py = (r.y0 + j * u64::from(NODE_PX)) as f64;
                 let (mx, my) = mercator::pixel_to_mercator(r.z, r.tile_size, px, py);
                 let (lon, lat) = mercator::mercator_to_lonlat(mx, my);
-                src.grid_position(lon, lat)
-                    .unwrap_or((f64::NAN, f64::NAN))
+                src.grid_position(lon, lat).unwrap_or((f64::NAN, f64::NAN))
             })
             .collect();
         Nodes { nx, pos }
@@ -509,7 +514,11 @@ pub fn render_region(
     // The cells under the region (their bilinear neighbours included).
     let mut lo = (f64::INFINITY, f64::INFINITY);
     let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
-    for &(c, r) in nodes.pos.iter().filter(|p| p.0.is_finite() && p.1.is_finite()) {
+    for &(c, r) in nodes
+        .pos
+        .iter()
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+    {
         lo = (lo.0.min(c), lo.1.min(r));
         hi = (hi.0.max(c), hi.1.max(r));
     }
@@ -684,7 +693,9 @@ fn encode(layer: Layer, v: &[f32; 3]) -> [u8; 4] {
 /// Mapbox Terrain-RGB of an elevation in metres: 0.1 m steps from −10 000 m (clamped to the
 /// 24-bit range).
 pub fn terrain_rgb(h: f32) -> [u8; 3] {
-    let v = ((f64::from(h) + 10_000.0) * 10.0).round().clamp(0.0, 16_777_215.0) as u32;
+    let v = ((f64::from(h) + 10_000.0) * 10.0)
+        .round()
+        .clamp(0.0, 16_777_215.0) as u32;
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 
@@ -695,7 +706,9 @@ pub fn decode_terrain_rgb([r, g, b]: [u8; 3]) -> f64 {
 
 /// Terrarium of an elevation in metres: 1/256 m steps from −32 768 m (clamped).
 pub fn terrarium(h: f32) -> [u8; 3] {
-    let v = ((f64::from(h) + 32_768.0) * 256.0).round().clamp(0.0, 16_777_215.0) as u32;
+    let v = ((f64::from(h) + 32_768.0) * 256.0)
+        .round()
+        .clamp(0.0, 16_777_215.0) as u32;
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 

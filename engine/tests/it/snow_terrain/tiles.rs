@@ -77,7 +77,11 @@ fn check_seams(name: &str, params: serde_json::Value, layers: &[Layer]) {
             let whole = render_region(&src, layer, &block, Window::Whole).expect("on the DEM");
             // The block is inside the DEM for the most part: the test compares real pixels
             // (snow is transparent where there is none: on the sea and the lowlands).
-            let min = if layer == Layer::Snow { 9 * 256 } else { 9 * 256 * 256 / 4 };
+            let min = if layer == Layer::Snow {
+                9 * 256
+            } else {
+                9 * 256 * 256 / 4
+            };
             assert!(
                 opaque(&whole) > min,
                 "{name} z{z} {}: {} opaque pixels",
@@ -107,7 +111,12 @@ fn check_seams(name: &str, params: serde_json::Value, layers: &[Layer]) {
                 }
             }
             // Not a constant picture: the comparison can fail.
-            assert!(seen.len() > 20, "{name} z{z} {}: {} colours", layer.name(), seen.len());
+            assert!(
+                seen.len() > 20,
+                "{name} z{z} {}: {} colours",
+                layer.name(),
+                seen.len()
+            );
         }
     }
 }
@@ -117,7 +126,12 @@ fn tiles_equal_the_whole_dem_result_on_a_projected_dem() {
     check_seams(
         "olinda_dem_utm25s.tif",
         json!({}),
-        &[Layer::Snow, Layer::Relief, Layer::Hillshade, Layer::TerrainRgb],
+        &[
+            Layer::Snow,
+            Layer::Relief,
+            Layer::Hillshade,
+            Layer::TerrainRgb,
+        ],
     );
 }
 
@@ -126,7 +140,12 @@ fn tiles_equal_the_whole_dem_result_on_a_geographic_dem() {
     check_seams(
         "jacksboro_fault_dem_f32.tif",
         json!({}),
-        &[Layer::Snow, Layer::Relief, Layer::Hillshade, Layer::Terrarium],
+        &[
+            Layer::Snow,
+            Layer::Relief,
+            Layer::Hillshade,
+            Layer::Terrarium,
+        ],
     );
 }
 
@@ -150,7 +169,9 @@ fn resolved_parameters_give_the_pipelines_descriptor() {
         let p = SnowTerrainParams::from_json(&json!({}), &Limits::default()).unwrap();
         let dem = load(name);
         let src = MapSource::new(dem.clone(), &p).unwrap();
-        let a = compute(&dem, &p.descriptor, &NoControl, (0.0, 1.0)).unwrap().t;
+        let a = compute(&dem, &p.descriptor, &NoControl, (0.0, 1.0))
+            .unwrap()
+            .t;
         let b = compute(&dem, src.descriptor_params(), &NoControl, (0.0, 1.0))
             .unwrap()
             .t;
