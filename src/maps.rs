@@ -126,7 +126,7 @@ impl Maps {
         filename: Option<String>,
         params: serde_json::Value,
     ) -> Result<Arc<MapSource>, MapsError> {
-        let limits = self.inner.limits.clone();
+        let limits = self.inner.limits;
         let src = self
             .on_pool(move || tiles::open(&bytes, filename.as_deref(), &params, &limits))
             .await??;

@@ -650,7 +650,7 @@ fn sample(
         (c0, r1, (1.0 - fx) * fy),
         (c1, r1, fx * fy),
     ];
-    for k in 0..ch {
+    for (k, o) in out.iter_mut().enumerate().take(ch) {
         let (mut s, mut wsum) = (0.0f32, 0.0f32);
         for &(cc, rr, wt) in &corners {
             let v = at(cc, rr, k);
@@ -659,7 +659,7 @@ fn sample(
                 wsum += wt;
             }
         }
-        out[k] = if wsum > 0.0 { s / wsum } else { at(nc, nr, k) };
+        *o = if wsum > 0.0 { s / wsum } else { at(nc, nr, k) };
     }
     true
 }
