@@ -9,6 +9,7 @@ pub mod cli;
 pub mod config;
 pub mod error;
 pub mod jobs;
+pub mod maps;
 pub mod metrics;
 pub mod pipeline_set;
 pub mod scenes;
@@ -46,6 +47,8 @@ pub enum StartError {
     Metrics(#[from] prometheus::Error),
     #[error("cannot load the cloud scenes: {0}")]
     Scenes(#[from] scenes::SceneError),
+    #[error("cannot start the map pool: {0}")]
+    MapPool(#[from] rayon::ThreadPoolBuildError),
 }
 
 /// Opens the store and starts the job system with the engine's pipelines.
@@ -131,8 +134,10 @@ pub async fn state_with(
     metrics
         .store_bytes
         .set(i64::try_from(jobs.store().blob_bytes().await).unwrap_or(i64::MAX));
+    let maps = maps::Maps::new(jobs.store().clone(), jcfg.threads, cfg.limits())?;
     Ok(AppState {
         memory: jcfg.memory.clone(),
+        maps,
         cfg: Arc::new(cfg),
         jobs,
         scenes,

@@ -7,6 +7,7 @@ mod body_timeout;
 mod dto;
 mod extract;
 mod jobs;
+mod maps;
 mod scenes;
 mod strict_json;
 mod submit;
@@ -39,6 +40,8 @@ pub struct AppState {
     pub cfg: Arc<Config>,
     pub jobs: Jobs,
     pub scenes: crate::scenes::Scenes,
+    /// Web maps and their tile pool (`/v1/maps`).
+    pub maps: crate::maps::Maps,
     pub metrics: Metrics,
     /// The process's memory budget, shared by the up-front input checks (`api::admission`) and
     /// the running jobs.
@@ -71,6 +74,10 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("delete", "/v1/jobs/{id}"),
     ("get", "/v1/jobs/{id}/events"),
     ("get", "/v1/jobs/{id}/outputs/{name}"),
+    ("post", "/v1/maps"),
+    ("get", "/v1/maps/{id}"),
+    ("get", "/v1/maps/{id}/tilejson.json"),
+    ("get", "/v1/maps/{id}/tiles/{layer}/{z}/{x}/{y}.png"),
 ];
 
 /// The application router (no socket: tests drive it with `tower::ServiceExt::oneshot`).
@@ -103,7 +110,15 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/jobs", get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
         .route("/v1/jobs/{id}/events", get(jobs::events))
-        .route("/v1/jobs/{id}/outputs/{name}", get(jobs::output));
+        .route("/v1/jobs/{id}/outputs/{name}", get(jobs::output))
+        .route("/v1/maps", post(maps::create))
+        .route("/v1/maps/{id}", get(maps::get))
+        .route("/v1/maps/{id}/tilejson.json", get(maps::tilejson))
+        // `{file}` is `{y}.png` (the router has no parameters with a suffix).
+        .route(
+            "/v1/maps/{id}/tiles/{layer}/{z}/{x}/{file}",
+            get(maps::tile),
+        );
     for name in state.jobs.pipelines().names() {
         router = router.route(
             &format!("/v1/{name}"),

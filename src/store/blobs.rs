@@ -323,6 +323,24 @@ impl Store {
         Ok(out)
     }
 
+    /// Writes an object's bytes (cached map tiles).
+    pub(super) async fn put_object(&self, key: &str, bytes: Bytes) -> Result<(), StoreError> {
+        self.objects()
+            .put(&ObjPath::from(key), PutPayload::from_bytes(bytes))
+            .await
+            .map_err(obj_err)?;
+        Ok(())
+    }
+
+    /// An object's bytes; `None` if it is missing, `Err` if the store cannot answer.
+    pub(super) async fn get_object(&self, key: &str) -> Result<Option<Bytes>, StoreError> {
+        match self.objects().get(&ObjPath::from(key)).await {
+            Ok(got) => got.bytes().await.map(Some).map_err(obj_err),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(obj_err(e)),
+        }
+    }
+
     pub(super) async fn delete_object(&self, key: &str) -> Result<(), StoreError> {
         match self.objects().delete(&ObjPath::from(key)).await {
             Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),

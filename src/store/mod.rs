@@ -5,6 +5,8 @@
 //! ```text
 //! blobs/sha256/ab/abcdef…   input assets and job outputs, named by the SHA-256 of their bytes
 //! assets/<sha256>.json      asset metadata (file name, size, last use)
+//! maps/<id>.json            map records (`POST /v1/maps`)
+//! tiles/v<n>/<map>/…         cached map tiles, by map, layer, zoom, column, row and size
 //! staging/                  uploads being streamed in, readiness probes
 //! ```
 //! Local files (always under `data_dir`):
@@ -19,6 +21,7 @@
 
 pub mod assets;
 mod blobs;
+pub mod maps;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -97,6 +97,11 @@ fn schemathesis_finds_no_failures() {
         )
         .await;
         let scene = post_json(&s, "/v1/clouds", json!({"asset": volume})).await;
+        // A georeferenced DEM (UTM 32N) for the map routes.
+        let utm = std::fs::read(root.join("tests/data/dem/kagwene_cameroon_elev_30m_utm32n.tif"))
+            .unwrap();
+        let utm = upload(&s, utm, "kagwene.tif").await;
+        let map = post_json(&s, "/v1/maps", json!({"asset": utm})).await;
         let doomed = post_json(&s, "/v1/clouds", json!({"asset": volume})).await;
         assert_eq!(job["status"], "succeeded", "{job}");
         vec![
@@ -106,6 +111,7 @@ fn schemathesis_finds_no_failures() {
                 cancel["id"].as_str().unwrap().to_string(),
             ),
             ("PHENOMENA_ASSET_ID", dem),
+            ("PHENOMENA_MAP_ID", map["id"].as_str().unwrap().to_string()),
             (
                 "PHENOMENA_SCENE_ID",
                 scene["id"].as_str().unwrap().to_string(),

@@ -11,6 +11,7 @@ mod dust;
 mod faults;
 mod hardening;
 mod load_balancer;
+mod maps;
 mod openapi;
 mod overload;
 mod restart;

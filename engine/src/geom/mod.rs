@@ -5,6 +5,7 @@
 
 pub mod camera;
 pub mod heightfield;
+pub mod mercator;
 pub mod mesh;
 pub mod sanity;
 pub mod subdivide;

@@ -456,11 +456,7 @@ pub fn compute(
     // 5. Smooth t.
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    let t_passes = p.descriptor_smooth_iterations.unwrap_or_else(|| {
-        let v = (f64::from(p.smooth_length) / 5f64.sqrt() / cell).powi(2);
-        let per_pass = diamond_m2(radius) / 2.0;
-        (v / per_pass).round().clamp(0.0, 50.0) as usize
-    });
+    let t_passes = t_passes_for(p, cell, radius);
     for i in 0..t_passes {
         prog.report(4, i as f32 / t_passes as f32);
         ctl.checkpoint()?;
@@ -543,6 +539,51 @@ pub fn compute(
         timings,
         resolved,
     })
+}
+
+/// Passes of step 5: the given `descriptor_smooth_iterations`, else as many as blur t by
+/// `smooth_length`/√5 metres with the diamond of `radius` on `cell`-metre cells.
+fn t_passes_for(p: &DescriptorParams, cell: f64, radius: usize) -> usize {
+    p.descriptor_smooth_iterations.unwrap_or_else(|| {
+        let v = (f64::from(p.smooth_length) / 5f64.sqrt() / cell).powi(2);
+        let per_pass = diamond_m2(radius) / 2.0;
+        (v / per_pass).round().clamp(0.0, 50.0) as usize
+    })
+}
+
+/// `p` with every value that [`compute`] would resolve from the whole of `dem` fixed: the
+/// smoothing diamond and passes (steps 1 and 5), the snowline and band of step 4 (elevation
+/// quantiles of the whole DEM) and the sun's azimuth (the hemisphere of the DEM's centre).
+/// [`compute`] with the result on any window of `dem` (cropped, same `dx`, `dy`) gives, away
+/// from the window's cut edges, what it gives with `p` on the whole DEM: what map tiles need
+/// (`super::tiles`). `None` fields stay `None` only where nothing is left to resolve (a DEM
+/// without land has no altitude band).
+pub fn resolve(dem: &Dem, p: &DescriptorParams) -> DescriptorParams {
+    let cell = (dem.dx * dem.dy).abs().sqrt();
+    let (radius, passes) =
+        smoothing_for(p.smooth_length, cell, p.smooth_radius, p.smooth_iterations);
+    let mut r = p.clone();
+    r.smooth_radius = Some(radius);
+    r.smooth_iterations = Some(passes);
+    r.descriptor_smooth_iterations = Some(t_passes_for(p, cell, radius));
+    r.sun_azimuth_deg = Some(sun_azimuth_for(dem, p.sun_azimuth_deg).0);
+    if let Some((z0, z1)) = altitude_band(&dem.heights, p) {
+        r.snowline = Some(z0);
+        r.snow_band = Some(z1 - z0);
+    }
+    r
+}
+
+/// How far, in cells, the descriptor [`compute`] gives at a grid point reaches into the heights
+/// with resolved parameters (see [`resolve`]): step 1's diamond × passes, TSA's window plus the
+/// two cells its one-sided normals read (step 2), step 5's diamond × passes, and the one cell of
+/// the sun correction's quads and the slope term's differences (step 6). A window of the DEM
+/// grown by this many cells on each side holds every height a point inside it depends on.
+pub fn reach(p: &DescriptorParams) -> usize {
+    let radius = p.smooth_radius.unwrap_or(16);
+    let passes = p.smooth_iterations.unwrap_or(50);
+    let t_passes = p.descriptor_smooth_iterations.unwrap_or(50);
+    radius * (passes + t_passes) + p.tsa_window + 2 + 1
 }
 
 /// (z₀, z₁) of the altitude term for these parameters (see [`super::altitude`]), `None` when no

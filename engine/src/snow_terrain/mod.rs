@@ -12,6 +12,7 @@ pub mod params;
 pub mod run;
 pub mod smooth;
 pub mod sun;
+pub mod tiles;
 pub mod transfer;
 pub mod tsa;
 pub mod view;

@@ -2,5 +2,6 @@
 
 mod descriptor;
 mod run;
+mod tiles;
 mod view;
 mod winter;

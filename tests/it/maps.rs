@@ -1,0 +1,454 @@
+//! Maps over HTTP (issue 22): a real DEM as a web map — the map resource, TileJSON 3.0.0
+//! (validated against the TileJSON 3.0.0 JSON schema), PNG tiles of every layer with their
+//! cache headers (a second request answered from the cache, 304 on `If-None-Match`), the
+//! elevation encodings decoding back to the DEM's elevations, and the refusals. Every JSON
+//! response is validated against `openapi.yaml`.
+
+use phenomena_engine::geom::mercator::{lonlat_to_mercator, mercator_to_pixel};
+use phenomena_engine::snow_terrain::tiles::{decode_terrain_rgb, decode_terrarium};
+use serde_json::{json, Value};
+
+use crate::common::{data, problem, Server};
+use crate::openapi::{checked, spec};
+
+/// The TileJSON 3.0.0 JSON schema, written here from the specification
+/// (github.com/mapbox/tilejson-spec, `3.0.0/README.md` and its `schema.json`): every field the
+/// spec defines with its type and range, `tilejson` and `tiles` required.
+fn tilejson_schema() -> Value {
+    let zoom = json!({"type": "integer", "minimum": 0, "maximum": 30});
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "type": "object",
+        "required": ["tilejson", "tiles"],
+        "properties": {
+            "tilejson": {"type": "string", "pattern": "^3\\.[0-9]+\\.[0-9]+$"},
+            "tiles": {"type": "array", "minItems": 1, "items": {"type": "string"}},
+            "vector_layers": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "required": ["id", "fields"],
+                    "properties": {
+                        "id": {"type": "string"},
+                        "fields": {"type": "object", "additionalProperties": {"type": "string"}},
+                        "description": {"type": "string"},
+                        "minzoom": zoom,
+                        "maxzoom": zoom
+                    }
+                }
+            },
+            "attribution": {"type": "string"},
+            "bounds": {
+                "type": "array",
+                "prefixItems": [
+                    {"type": "number", "minimum": -180, "maximum": 180},
+                    {"type": "number", "minimum": -90, "maximum": 90},
+                    {"type": "number", "minimum": -180, "maximum": 180},
+                    {"type": "number", "minimum": -90, "maximum": 90}
+                ],
+                "minItems": 4,
+                "maxItems": 4
+            },
+            "center": {
+                "type": "array",
+                "prefixItems": [
+                    {"type": "number", "minimum": -180, "maximum": 180},
+                    {"type": "number", "minimum": -90, "maximum": 90},
+                    zoom
+                ],
+                "minItems": 3,
+                "maxItems": 3
+            },
+            "data": {"type": "array", "items": {"type": "string"}},
+            "description": {"type": "string"},
+            "fillzoom": zoom,
+            "grids": {"type": "array", "items": {"type": "string"}},
+            "legend": {"type": "string"},
+            "maxzoom": zoom,
+            "minzoom": zoom,
+            "name": {"type": "string"},
+            "scheme": {"enum": ["xyz", "tms"]},
+            "template": {"type": "string"},
+            "version": {"type": "string", "pattern": "^[0-9]+\\.[0-9]+\\.[0-9]+"}
+        }
+    })
+}
+
+async fn upload(s: &Server, rel: &str) -> String {
+    let path = data(rel);
+    let name = path.file_name().unwrap().to_string_lossy().into_owned();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/assets?filename={name}")))
+        .body(std::fs::read(&path).unwrap())
+        .send()
+        .await
+        .unwrap();
+    assert!(r.status().is_success(), "{}", r.status());
+    r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+/// The tile (x, y) at zoom z holding the map's centre.
+fn centre_tile(tj: &Value, z: u8) -> (u64, u64) {
+    let (lon, lat) = (
+        tj["center"][0].as_f64().unwrap(),
+        tj["center"][1].as_f64().unwrap(),
+    );
+    let (mx, my) = lonlat_to_mercator(lon, lat);
+    let (px, py) = mercator_to_pixel(z, 256, mx, my);
+    ((px / 256.0) as u64, (py / 256.0) as u64)
+}
+
+fn decode(png: &[u8]) -> image::RgbaImage {
+    image::load_from_memory_with_format(png, image::ImageFormat::Png)
+        .unwrap()
+        .to_rgba8()
+}
+
+#[tokio::test]
+async fn a_dem_is_served_as_a_web_map() {
+    let spec = spec();
+    let s = Server::start(|_| {}).await;
+    let asset = upload(&s, "dem/olinda_dem_utm25s.tif").await;
+
+    // Create: 201 with Location; the same request again names the same map (200).
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": asset}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let location = r.headers()["location"].to_str().unwrap().to_string();
+    let map = checked(&spec, "post", "/v1/maps", r).await;
+    let id = map["id"].as_str().unwrap().to_string();
+    assert_eq!(location, format!("/v1/maps/{id}"));
+    assert_eq!(map["crs"], "EPSG:32725");
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": asset, "params": {}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(checked(&spec, "post", "/v1/maps", r).await["id"], json!(id));
+    // Other parameters are another map.
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": asset, "params": {"preset": "paper"}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    assert_ne!(r.json::<Value>().await.unwrap()["id"], json!(id));
+    let r = s.client.get(s.url(&location)).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(
+        checked(&spec, "get", "/v1/maps/{id}", r).await["id"],
+        json!(id)
+    );
+
+    // TileJSON 3.0.0, for the default layer and an elevation layer.
+    let validator = jsonschema::validator_for(&tilejson_schema()).unwrap();
+    let tj_path = format!("/v1/maps/{id}/tilejson.json");
+    let r = s.client.get(s.url(&tj_path)).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    assert!(r.headers()["cache-control"]
+        .to_str()
+        .unwrap()
+        .contains("max-age"));
+    let tj = checked(&spec, "get", "/v1/maps/{id}/tilejson.json", r).await;
+    let errors: Vec<String> = validator.iter_errors(&tj).map(|e| e.to_string()).collect();
+    assert!(errors.is_empty(), "{errors:?}\n{tj}");
+    assert_eq!(tj["tilejson"], "3.0.0");
+    assert!(tj.get("encoding").is_none());
+    let template = tj["tiles"][0].as_str().unwrap();
+    assert_eq!(
+        template,
+        s.url(&format!("/v1/maps/{id}/tiles/relief/{{z}}/{{x}}/{{y}}.png"))
+    );
+    let b: Vec<f64> = tj["bounds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    // Olinda, Pernambuco: about 34.9° W, 8.0° S; 111 cells of 90 m ≈ 0.09°.
+    assert!(b[0] < b[2] && b[1] < b[3], "{b:?}");
+    assert!(
+        (b[0] + 34.9).abs() < 0.2 && (b[3] + 7.95).abs() < 0.2,
+        "{b:?}"
+    );
+    assert!((b[2] - b[0] - 0.09).abs() < 0.02, "{b:?}");
+    let (minzoom, maxzoom) = (
+        tj["minzoom"].as_u64().unwrap(),
+        tj["maxzoom"].as_u64().unwrap(),
+    );
+    // 90 m cells: zoom 11 has 75 m pixels at 8° S, zoom 10 150 m.
+    assert_eq!(maxzoom, 11);
+    assert!(minzoom <= maxzoom && minzoom >= 5, "{minzoom}");
+    let r = s
+        .client
+        .get(s.url(&format!("{tj_path}?layer=terrain-rgb&tile_size=512")))
+        .send()
+        .await
+        .unwrap();
+    let tjr = checked(&spec, "get", "/v1/maps/{id}/tilejson.json", r).await;
+    assert!(validator.is_valid(&tjr), "{tjr}");
+    assert_eq!(tjr["encoding"], "mapbox");
+    assert!(tjr["tiles"][0]
+        .as_str()
+        .unwrap()
+        .ends_with("terrain-rgb/{z}/{x}/{y}.png?tile_size=512"));
+    let r = s
+        .client
+        .get(s.url(&format!("{tj_path}?layer=terrarium")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.json::<Value>().await.unwrap()["encoding"], "terrarium");
+
+    // Tiles of every layer at the DEM's zoom, one zoom deeper, and at 512 px.
+    let z = maxzoom as u8 + 1;
+    let (x, y) = centre_tile(&tj, z);
+    let tile = |layer: &str, z: u8, x: u64, y: u64, q: &str| {
+        s.url(&format!("/v1/maps/{id}/tiles/{layer}/{z}/{x}/{y}.png{q}"))
+    };
+    for layer in ["snow", "relief", "hillshade", "terrain-rgb", "terrarium"] {
+        let r = s.client.get(tile(layer, z, x, y, "")).send().await.unwrap();
+        assert_eq!(r.status(), 200, "{layer}");
+        assert_eq!(r.headers()["content-type"], "image/png");
+        let img = decode(&r.bytes().await.unwrap());
+        assert_eq!(img.dimensions(), (256, 256));
+        let opaque = img.pixels().filter(|p| p[3] > 0).count();
+        assert!(opaque > 0, "{layer}: nothing drawn");
+    }
+    let r = s
+        .client
+        .get(tile("relief", z, x, y, "?tile_size=512"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(decode(&r.bytes().await.unwrap()).dimensions(), (512, 512));
+
+    // The elevation encodings decode to the same elevations within their steps, in the DEM's
+    // range (−1 … 88 m).
+    let rgb = decode(
+        &s.client
+            .get(tile("terrain-rgb", z, x, y, ""))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap(),
+    );
+    let ter = decode(
+        &s.client
+            .get(tile("terrarium", z, x, y, ""))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap(),
+    );
+    let mut n = 0;
+    for (a, b) in rgb.pixels().zip(ter.pixels()) {
+        assert_eq!(a[3], b[3]);
+        if a[3] == 0 {
+            continue;
+        }
+        let ha = decode_terrain_rgb([a[0], a[1], a[2]]);
+        let hb = decode_terrarium([b[0], b[1], b[2]]);
+        assert!((ha - hb).abs() <= 0.05 + 0.5 / 256.0 + 1e-3, "{ha} {hb}");
+        assert!((-1.05..=88.05).contains(&ha), "{ha}");
+        n += 1;
+    }
+    assert!(n > 1000, "{n}");
+
+    // Cached: the tile is in the store, the second answer has the same ETag, and
+    // If-None-Match gets 304 with no body.
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, ""))
+        .send()
+        .await
+        .unwrap();
+    let etag = r.headers()["etag"].to_str().unwrap().to_string();
+    assert!(r.headers()["cache-control"]
+        .to_str()
+        .unwrap()
+        .contains("max-age"));
+    let body = r.bytes().await.unwrap();
+    assert_eq!(etag, format!("\"{}\"", phenomena::store::sha256_hex(&body)));
+    let cached = s
+        .dir
+        .path()
+        .join(format!("tiles/v1/{id}/snow/{z}/{x}/{y}@256.png"));
+    assert_eq!(std::fs::read(&cached).unwrap(), body.to_vec());
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, ""))
+        .header("If-None-Match", &etag)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 304);
+    assert_eq!(r.headers()["etag"].to_str().unwrap(), etag);
+    assert!(r.bytes().await.unwrap().is_empty());
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, ""))
+        .header("If-None-Match", "\"something-else\"")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+
+    // Off the DEM: 204. Outside the tile matrix, an unknown layer or map: 404.
+    let r = s
+        .client
+        .get(tile("snow", z, x + 50, y, ""))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 204);
+    assert!(r.bytes().await.unwrap().is_empty());
+    let r = s
+        .client
+        .get(tile("snow", 3, 8, 0, ""))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    let r = s
+        .client
+        .get(tile("snowy", z, x, y, ""))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    let r = s
+        .client
+        .get(tile("snow", 25, 0, 0, ""))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/maps/{}/tiles/snow/1/0/0.png", "a".repeat(64))))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, "?tile_size=300"))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 400, "bad-request").await;
+    let r = s
+        .client
+        .get(tile("snow", z, x, y, "?zoom=3"))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 400, "bad-request").await;
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/maps/{id}/tiles/snow/{z}/{x}/abc.png")))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+}
+
+#[tokio::test]
+async fn maps_refuse_what_they_cannot_place() {
+    // An output limit below the default render size: a map renders no `render.png`, so its
+    // parameters are not held to it.
+    let s = Server::start(|c| c.max_output_pixels = 64 * 64).await;
+    // The studio's example DEM has no CRS (metre coordinates from 0, 0): no place on Earth.
+    let ex = s
+        .client
+        .get(s.url("/v1/examples/dem.asc"))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
+    let r = s
+        .client
+        .post(s.url("/v1/assets?filename=dem.asc"))
+        .body(ex)
+        .send()
+        .await
+        .unwrap();
+    let asset = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": asset}))
+        .send()
+        .await
+        .unwrap();
+    let p = problem(r, 422, "invalid-input").await;
+    assert!(p["detail"].as_str().unwrap().contains("EPSG"), "{p}");
+    // Unknown parameters, unknown assets.
+    let geo = upload(&s, "dem/jacksboro_fault_dem_f32.tif").await;
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": geo, "params": {"snowiness": 1}}))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 422, "invalid-parameter").await;
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": "b".repeat(64)}))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/maps/{}", "c".repeat(64))))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404, "not-found").await;
+    // A geographic DEM makes a map whose TileJSON is in degrees as given.
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": geo}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    let b = &map["bounds"];
+    // Jacksboro: west −84.41375, north 36.44625, 403 × 344 cells of 3″.
+    assert!((b[0].as_f64().unwrap() + 84.41375).abs() < 1e-9, "{b}");
+    assert!((b[3].as_f64().unwrap() - 36.44625).abs() < 1e-9, "{b}");
+    assert!(
+        (b[2].as_f64().unwrap() - (-84.41375 + 403.0 * 3.0 / 3600.0)).abs() < 1e-9,
+        "{b}"
+    );
+}
