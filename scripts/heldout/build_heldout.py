@@ -423,7 +423,7 @@ def dems():
     xr, yr = np.asarray(im["xrange"], float), np.asarray(im["yrange"], float)
     cell = float(np.asarray(im["xstep"]).ravel()[0])
     with open(f"{D}/barro_colorado_bei_elev_5m.asc", "w") as o:
-        o.write(f"ncols {z.shape[1]}\nnrows {z.shape[0]}\nxllcorner {xr[0]!r}\nyllcorner {yr[0]!r}\ncellsize {cell!r}\nNODATA_value -9999\n")
+        o.write(f"ncols {z.shape[1]}\nnrows {z.shape[0]}\nxllcorner {float(xr[0])!r}\nyllcorner {float(yr[0])!r}\ncellsize {float(cell)!r}\nNODATA_value -9999\n")
         for rw in z:
             o.write(" ".join(f"{v:.4g}" for v in rw) + "\n")
     row("dem", "barro_colorado_bei_elev_5m.asc", sp, "/usr/lib/R/site-library/spatstat.data/data/Rdata.rdb, object `bei.extra$elev`", "GPL-2+ (spatstat.data)",
