@@ -91,6 +91,21 @@ async fn upload(s: &Server, rel: &str) -> String {
         .to_string()
 }
 
+/// `GET url` on the server.
+async fn get(s: &Server, url: impl reqwest::IntoUrl) -> reqwest::Response {
+    s.client.get(url).send().await.unwrap()
+}
+
+/// `POST /v1/maps` with the JSON `body`.
+async fn post_map(s: &Server, body: Value) -> reqwest::Response {
+    s.client
+        .post(s.url("/v1/maps"))
+        .json(&body)
+        .send()
+        .await
+        .unwrap()
+}
+
 /// The tile (x, y) at zoom z holding the map's centre.
 fn centre_tile(tj: &Value, z: u8) -> (u64, u64) {
     let (lon, lat) = (
@@ -115,36 +130,18 @@ async fn a_dem_is_served_as_a_web_map() {
     let asset = upload(&s, "dem/olinda_dem_utm25s.tif").await;
 
     // Create: 201 with Location; the same request again names the same map (200).
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": asset}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": asset})).await;
     assert_eq!(r.status(), 201);
     let location = r.headers()["location"].to_str().unwrap().to_string();
     let map = checked(&spec, "post", "/v1/maps", r).await;
     let id = map["id"].as_str().unwrap().to_string();
     assert_eq!(location, format!("/v1/maps/{id}"));
     assert_eq!(map["crs"], "EPSG:32725");
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": asset, "params": {}}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": asset, "params": {}})).await;
     assert_eq!(r.status(), 200);
     assert_eq!(checked(&spec, "post", "/v1/maps", r).await["id"], json!(id));
     // Other parameters are another map.
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": asset, "params": {"preset": "paper"}}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": asset, "params": {"preset": "paper"}})).await;
     assert_eq!(r.status(), 201);
     assert_ne!(r.json::<Value>().await.unwrap()["id"], json!(id));
     let r = s.client.get(s.url(&location)).send().await.unwrap();
@@ -193,12 +190,11 @@ async fn a_dem_is_served_as_a_web_map() {
     // 90 m cells: zoom 11 has 75 m pixels at 8° S, zoom 10 150 m.
     assert_eq!(maxzoom, 11);
     assert!(minzoom <= maxzoom && minzoom >= 5, "{minzoom}");
-    let r = s
-        .client
-        .get(s.url(&format!("{tj_path}?layer=terrain-rgb&tile_size=512")))
-        .send()
-        .await
-        .unwrap();
+    let r = get(
+        &s,
+        s.url(&format!("{tj_path}?layer=terrain-rgb&tile_size=512")),
+    )
+    .await;
     let tjr = checked(&spec, "get", "/v1/maps/{id}/tilejson.json", r).await;
     assert!(validator.is_valid(&tjr), "{tjr}");
     assert_eq!(tjr["encoding"], "mapbox");
@@ -206,12 +202,7 @@ async fn a_dem_is_served_as_a_web_map() {
         .as_str()
         .unwrap()
         .ends_with("terrain-rgb/{z}/{x}/{y}.png?tile_size=512"));
-    let r = s
-        .client
-        .get(s.url(&format!("{tj_path}?layer=terrarium")))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, s.url(&format!("{tj_path}?layer=terrarium"))).await;
     assert_eq!(r.json::<Value>().await.unwrap()["encoding"], "terrarium");
 
     // Tiles of every layer at the DEM's zoom, one zoom deeper, and at 512 px.
@@ -229,12 +220,7 @@ async fn a_dem_is_served_as_a_web_map() {
         let opaque = img.pixels().filter(|p| p[3] > 0).count();
         assert!(opaque > 0, "{layer}: nothing drawn");
     }
-    let r = s
-        .client
-        .get(tile("relief", z, x, y, "?tile_size=512"))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("relief", z, x, y, "?tile_size=512")).await;
     assert_eq!(r.status(), 200);
     assert_eq!(decode(&r.bytes().await.unwrap()).dimensions(), (512, 512));
 
@@ -276,12 +262,7 @@ async fn a_dem_is_served_as_a_web_map() {
 
     // Cached: the tile is in the store, the second answer has the same ETag, and
     // If-None-Match gets 304 with no body.
-    let r = s
-        .client
-        .get(tile("snow", z, x, y, ""))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", z, x, y, "")).await;
     let etag = r.headers()["etag"].to_str().unwrap().to_string();
     assert!(r.headers()["cache-control"]
         .to_str()
@@ -314,34 +295,14 @@ async fn a_dem_is_served_as_a_web_map() {
     assert_eq!(r.status(), 200);
 
     // Off the DEM: 204. Outside the tile matrix, an unknown layer or map: 404.
-    let r = s
-        .client
-        .get(tile("snow", z, x + 50, y, ""))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", z, x + 50, y, "")).await;
     assert_eq!(r.status(), 204);
     assert!(r.bytes().await.unwrap().is_empty());
-    let r = s
-        .client
-        .get(tile("snow", 3, 8, 0, ""))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", 3, 8, 0, "")).await;
     problem(r, 404, "not-found").await;
-    let r = s
-        .client
-        .get(tile("snowy", z, x, y, ""))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snowy", z, x, y, "")).await;
     problem(r, 404, "not-found").await;
-    let r = s
-        .client
-        .get(tile("snow", 25, 0, 0, ""))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", 25, 0, 0, "")).await;
     problem(r, 404, "not-found").await;
     let r = s
         .client
@@ -350,26 +311,15 @@ async fn a_dem_is_served_as_a_web_map() {
         .await
         .unwrap();
     problem(r, 404, "not-found").await;
-    let r = s
-        .client
-        .get(tile("snow", z, x, y, "?tile_size=300"))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", z, x, y, "?tile_size=300")).await;
     problem(r, 400, "bad-request").await;
-    let r = s
-        .client
-        .get(tile("snow", z, x, y, "?zoom=3"))
-        .send()
-        .await
-        .unwrap();
+    let r = get(&s, tile("snow", z, x, y, "?zoom=3")).await;
     problem(r, 400, "bad-request").await;
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/maps/{id}/tiles/snow/{z}/{x}/abc.png")))
-        .send()
-        .await
-        .unwrap();
+    let r = get(
+        &s,
+        s.url(&format!("/v1/maps/{id}/tiles/snow/{z}/{x}/abc.png")),
+    )
+    .await;
     problem(r, 404, "not-found").await;
 }
 
@@ -399,32 +349,14 @@ async fn maps_refuse_what_they_cannot_place() {
         .as_str()
         .unwrap()
         .to_string();
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": asset}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": asset})).await;
     let p = problem(r, 422, "invalid-input").await;
     assert!(p["detail"].as_str().unwrap().contains("EPSG"), "{p}");
     // Unknown parameters, unknown assets.
     let geo = upload(&s, "dem/jacksboro_fault_dem_f32.tif").await;
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": geo, "params": {"snowiness": 1}}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": geo, "params": {"snowiness": 1}})).await;
     problem(r, 422, "invalid-parameter").await;
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": "b".repeat(64)}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": "b".repeat(64)})).await;
     problem(r, 404, "not-found").await;
     let r = s
         .client
@@ -434,13 +366,7 @@ async fn maps_refuse_what_they_cannot_place() {
         .unwrap();
     problem(r, 404, "not-found").await;
     // A geographic DEM makes a map whose TileJSON is in degrees as given.
-    let r = s
-        .client
-        .post(s.url("/v1/maps"))
-        .json(&json!({"asset": geo}))
-        .send()
-        .await
-        .unwrap();
+    let r = post_map(&s, json!({"asset": geo})).await;
     assert_eq!(r.status(), 201);
     let map: Value = r.json().await.unwrap();
     let b = &map["bounds"];

@@ -690,31 +690,39 @@ fn encode(layer: Layer, v: &[f32; 3]) -> [u8; 4] {
     }
 }
 
-/// Mapbox Terrain-RGB of an elevation in metres: 0.1 m steps from −10 000 m (clamped to the
-/// 24-bit range).
-pub fn terrain_rgb(h: f32) -> [u8; 3] {
-    let v = ((f64::from(h) + 10_000.0) * 10.0)
+/// An elevation in metres as a 24-bit big-endian integer in RGB: `(h + offset) × steps` per
+/// metre, rounded and clamped to the 24-bit range (the rule Terrain-RGB and Terrarium share).
+fn pack24(h: f32, offset: f64, steps: f64) -> [u8; 3] {
+    let v = ((f64::from(h) + offset) * steps)
         .round()
         .clamp(0.0, 16_777_215.0) as u32;
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 
+/// The elevation of [`pack24`]'s RGB, metres.
+fn unpack24([r, g, b]: [u8; 3], offset: f64, steps: f64) -> f64 {
+    (f64::from(r) * 65_536.0 + f64::from(g) * 256.0 + f64::from(b)) / steps - offset
+}
+
+/// Mapbox Terrain-RGB of an elevation in metres: 0.1 m steps from −10 000 m (clamped to the
+/// 24-bit range).
+pub fn terrain_rgb(h: f32) -> [u8; 3] {
+    pack24(h, 10_000.0, 10.0)
+}
+
 /// Elevation of a Terrain-RGB pixel, metres.
-pub fn decode_terrain_rgb([r, g, b]: [u8; 3]) -> f64 {
-    -10_000.0 + (f64::from(r) * 65_536.0 + f64::from(g) * 256.0 + f64::from(b)) * 0.1
+pub fn decode_terrain_rgb(rgb: [u8; 3]) -> f64 {
+    unpack24(rgb, 10_000.0, 10.0)
 }
 
 /// Terrarium of an elevation in metres: 1/256 m steps from −32 768 m (clamped).
 pub fn terrarium(h: f32) -> [u8; 3] {
-    let v = ((f64::from(h) + 32_768.0) * 256.0)
-        .round()
-        .clamp(0.0, 16_777_215.0) as u32;
-    [(v >> 16) as u8, (v >> 8) as u8, v as u8]
+    pack24(h, 32_768.0, 256.0)
 }
 
 /// Elevation of a Terrarium pixel, metres.
-pub fn decode_terrarium([r, g, b]: [u8; 3]) -> f64 {
-    f64::from(r) * 256.0 + f64::from(g) + f64::from(b) / 256.0 - 32_768.0
+pub fn decode_terrarium(rgb: [u8; 3]) -> f64 {
+    unpack24(rgb, 32_768.0, 256.0)
 }
 
 #[cfg(test)]
