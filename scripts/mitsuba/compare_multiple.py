@@ -13,6 +13,10 @@ Usage (from the repository root; needs a release build of `phenomena`):
     python3 scripts/mitsuba/compare_multiple.py --volume cumulus --out target/mitsuba
     python3 scripts/mitsuba/compare_multiple.py \
         --volume ../shared/data/volume/openvdb_smoke_density.nrrd --out target/mitsuba
+    python3 scripts/mitsuba/compare_multiple.py \
+        --volume ../shared/data/volume/bunny_fog_density.vdb --ref-spp 1024 --out target/mitsuba
+
+A `.vdb` volume is read with Debian's `python3-openvdb` (`apt-get install python3-openvdb`).
 
 The first run makes a virtual environment in `target/mitsuba-venv` and installs `mitsuba` and
 `numpy` from PyPI there. Mitsuba's reference (`--ref-spp`, default 512) is rendered once and
@@ -136,6 +140,24 @@ def read_nrrd(path):
     assert fields["type"] == "float", fields["type"]
     arr = np.frombuffer(body, dtype="<f4").reshape(sizes[2], sizes[1], sizes[0])
     return np.maximum(arr, 0).astype(np.float32)
+
+
+def read_vdb(path, out):
+    """The first grid of an OpenVDB file, its active bounding box → (z, y, x), through Debian's
+    `python3-openvdb` (the system interpreter's `pyopenvdb`; it is not on PyPI), run as a
+    subprocess because this script runs in the venv. The grid is cut to the active voxels'
+    bounding box and written as `.npy`, which both renderers then read."""
+    npy = Path(out) / (Path(path).stem + "_vdb_zyx.npy")
+    code = (
+        "import sys, numpy as np, pyopenvdb as vdb\n"
+        "g = vdb.read(sys.argv[1], vdb.readAllGridMetadata(sys.argv[1])[0].name)\n"
+        "lo, hi = g.evalActiveVoxelBoundingBox()\n"
+        "a = np.zeros(tuple(h - l + 1 for l, h in zip(lo, hi)), dtype=np.float32)\n"
+        "g.copyToArray(a, ijk=lo)\n"
+        "np.save(sys.argv[2], np.ascontiguousarray(a.transpose(2, 1, 0)))\n"
+    )
+    subprocess.run(["/usr/bin/python3", "-c", code, str(path), str(npy)], check=True)
+    return np.maximum(np.load(npy), 0).astype(np.float32)
 
 
 def write_npy(path, arr):
@@ -321,6 +343,9 @@ def main():
     elif a.volume.endswith(".nrrd"):
         name = Path(a.volume).stem
         dens = read_nrrd(a.volume)
+    elif a.volume.endswith(".vdb"):
+        name = Path(a.volume).stem
+        dens = read_vdb(a.volume, out)
     else:
         name = Path(a.volume).stem
         dens = np.load(a.volume).astype(np.float32)
