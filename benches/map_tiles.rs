@@ -7,6 +7,8 @@
 //! Input: the Tanzawa–Sagami ASTER GDEM2 tile in `../shared/data/dem` (884 × 868 cells of 1″,
 //! EPSG:4326), the tile holding its centre, default (winter) parameters.
 //!
+//! Also the once-per-map sun-visibility field of `relief`'s cast shadows on the whole DEM.
+//!
 //! Run: `cargo bench --bench map_tiles`. Targets (issue 22): snow ≤ 60 ms, relief ≤ 120 ms
 //! median on 2 cores.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // benches may unwrap (STYLE habit 4)
@@ -16,7 +18,7 @@ use std::path::PathBuf;
 use criterion::{criterion_group, criterion_main, Criterion};
 use phenomena_engine::geom::mercator::{lonlat_to_mercator, mercator_to_pixel};
 use phenomena_engine::params::Limits;
-use phenomena_engine::snow_terrain::tiles::{open, tile_png, Layer};
+use phenomena_engine::snow_terrain::tiles::{open, sun_visibility, tile_png, Layer};
 
 fn bench(c: &mut Criterion) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -45,6 +47,19 @@ fn bench(c: &mut Criterion) {
             b.iter(|| pool.install(|| tile_png(&src, layer, z, x, y, 256).unwrap()))
         });
     }
+    g.finish();
+    // The sun-visibility field of cast shadows, computed once per map on its first `relief`
+    // tile (the warm-up above paid it; this is its cost alone), on the whole DEM.
+    let p = phenomena_engine::snow_terrain::SnowTerrainParams::from_json(
+        &serde_json::json!({}),
+        &Limits::default(),
+    )
+    .unwrap();
+    let mut g = c.benchmark_group("map_once");
+    g.sample_size(10);
+    g.bench_function("sun_visibility_884x868", |b| {
+        b.iter(|| pool.install(|| sun_visibility(src.dem(), 180.0, p.sun_elevation_deg as f32)))
+    });
     g.finish();
 }
 

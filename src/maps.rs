@@ -4,8 +4,12 @@
 //! ([`phenomena_engine::snow_terrain::tiles`]) on this process's map pool, a rayon pool of its
 //! own (never on the async runtime's threads), and cached in the store, so a second request (on
 //! any replica sharing the store) is a read. The prepared DEM of the maps last used is kept in
-//! memory ([`SOURCES_KEPT`]), so a cold tile decodes nothing.
+//! memory ([`SOURCES_KEPT`]), so a cold tile decodes nothing. Concurrent requests for one cold
+//! tile in this process compute it once: the first computes, the others wait for its result
+//! (a per-key `tokio::sync::OnceCell`; if the first request goes away, a waiter takes over).
 
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use bytes::Bytes;
@@ -46,6 +50,10 @@ struct Inner {
     sources: Mutex<Vec<(String, Arc<MapSource>)>>,
     /// Tiles computed at once (more wait for a permit): as many as the pool has threads.
     permits: tokio::sync::Semaphore,
+    /// Cold tiles being computed, by cache key: later requests for one wait for its result.
+    inflight: Mutex<HashMap<String, Arc<tokio::sync::OnceCell<Option<Bytes>>>>>,
+    /// Tiles this process has computed (not read from the cache).
+    computed: AtomicU64,
 }
 
 impl std::fmt::Debug for Maps {
@@ -79,12 +87,19 @@ impl Maps {
                 limits,
                 sources: Mutex::new(Vec::new()),
                 permits,
+                inflight: Mutex::new(HashMap::new()),
+                computed: AtomicU64::new(0),
             }),
         })
     }
 
     pub fn store(&self) -> &Store {
         &self.inner.store
+    }
+
+    /// Tiles this process has computed so far (cache misses that ran the engine).
+    pub fn tiles_computed(&self) -> u64 {
+        self.inner.computed.load(Ordering::Relaxed)
     }
 
     /// Validates wire snow-terrain parameters for a map: the canonical JSON (defaults filled,
@@ -177,15 +192,100 @@ impl Maps {
         if let Some(png) = self.inner.store.get_tile(&key).await? {
             return Ok(Some(png));
         }
+        let cell = match self.inner.inflight.lock() {
+            Ok(mut m) => m.entry(key.clone()).or_default().clone(),
+            // A poisoned map (a panic while holding it: none does) only loses the sharing.
+            Err(_) => Arc::default(),
+        };
+        let result = cell
+            .get_or_try_init(|| self.compute_tile(rec, &key, layer, z, x, y, size))
+            .await
+            .cloned();
+        // Settled (cached in the store, or failed): later requests go to the store again.
+        if let Ok(mut m) = self.inner.inflight.lock() {
+            if m.get(&key).is_some_and(|c| Arc::ptr_eq(c, &cell)) {
+                m.remove(&key);
+            }
+        }
+        result
+    }
+
+    /// Computes a cold tile on the pool and caches it.
+    #[allow(clippy::too_many_arguments)]
+    async fn compute_tile(
+        &self,
+        rec: &MapRecord,
+        key: &str,
+        layer: Layer,
+        z: u8,
+        x: u64,
+        y: u64,
+        size: u32,
+    ) -> Result<Option<Bytes>, MapsError> {
         let src = self.source(rec).await?;
         let png = self
             .on_pool(move || tiles::tile_png(&src, layer, z, x, y, size))
             .await?;
+        self.inner.computed.fetch_add(1, Ordering::Relaxed);
         let Some(png) = png else {
             return Ok(None);
         };
         let png = Bytes::from(png);
-        self.inner.store.put_tile(&key, png.clone()).await?;
+        self.inner.store.put_tile(key, png.clone()).await?;
         Ok(Some(png))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may unwrap (STYLE habit 4)
+
+    use super::*;
+    use phenomena_engine::geom::mercator::{lonlat_to_mercator, mercator_to_pixel};
+
+    /// Two concurrent requests for one cold tile run the engine once and get the same PNG; a
+    /// third is read from the cache.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn concurrent_requests_for_a_cold_tile_compute_it_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let maps = Maps::new(Store::open(dir.path()).unwrap(), 2, Limits::default()).unwrap();
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../shared/data/dem/jacksboro_fault_dem_f32.tif"
+        );
+        let bytes = Bytes::from(std::fs::read(path).unwrap());
+        let params = maps.params(&serde_json::json!({})).unwrap();
+        let id = "0".repeat(64);
+        let src = maps
+            .prepare(&id, bytes, Some("jacksboro.tif".into()), params.clone())
+            .await
+            .unwrap();
+        let info = src.info().clone();
+        let rec = MapRecord {
+            id,
+            asset: "1".repeat(64),
+            filename: None,
+            params,
+            info: info.clone(),
+            created_at: chrono::Utc::now(),
+        };
+        let z = info.maxzoom;
+        let (mx, my) = lonlat_to_mercator(info.center[0], info.center[1]);
+        let (px, py) = mercator_to_pixel(z, 256, mx, my);
+        let (x, y) = ((px / 256.0) as u64, (py / 256.0) as u64);
+        let (a, b) = tokio::join!(
+            maps.tile(&rec, Layer::Relief, z, x, y, 256),
+            maps.tile(&rec, Layer::Relief, z, x, y, 256)
+        );
+        let (a, b) = (
+            a.unwrap().expect("on the DEM"),
+            b.unwrap().expect("on the DEM"),
+        );
+        assert_eq!(a, b);
+        assert_eq!(maps.tiles_computed(), 1, "one computation for two requests");
+        let c = maps.tile(&rec, Layer::Relief, z, x, y, 256).await.unwrap();
+        assert_eq!(c, Some(a));
+        assert_eq!(maps.tiles_computed(), 1, "the third from the cache");
+        assert!(maps.inner.inflight.lock().unwrap().is_empty());
     }
 }

@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 use super::{is_sha256_hex, Store, StoreError};
 
 /// Version of the tile renderer in the cache keys: bump it when a change to the engine changes
-/// tile pixels, so no replica serves tiles of the old renderer.
-pub const TILE_VERSION: u32 = 1;
+/// tile pixels, so no replica serves tiles of the old renderer (2: `relief` with cast shadows and
+/// shading normalised to level ground).
+pub const TILE_VERSION: u32 = 2;
 
 /// A map: a DEM asset and the snow-terrain parameters it is drawn with. The id is the SHA-256 of
 /// both (the same request gives the same map).

@@ -270,10 +270,10 @@ async fn a_dem_is_served_as_a_web_map() {
         .contains("max-age"));
     let body = r.bytes().await.unwrap();
     assert_eq!(etag, format!("\"{}\"", phenomena::store::sha256_hex(&body)));
-    let cached = s
-        .dir
-        .path()
-        .join(format!("tiles/v1/{id}/snow/{z}/{x}/{y}@256.png"));
+    let cached = s.dir.path().join(format!(
+        "tiles/v{}/{id}/snow/{z}/{x}/{y}@256.png",
+        phenomena::store::maps::TILE_VERSION
+    ));
     assert_eq!(std::fs::read(&cached).unwrap(), body.to_vec());
     let r = s
         .client

@@ -12,8 +12,12 @@
 //! outside the grid add nothing, see [`super::smooth`]), so the window's values away from its cut
 //! edges are those of the whole-DEM descriptor, and the tile equals the same pixels resampled from
 //! the whole-DEM result ([`render_region`] with [`Window::Whole`]): neighbouring tiles agree along
-//! their common edge. Cast shadows are not drawn (they need a sun-visibility field over the whole
-//! map, which is for later); `relief` is lit by the sun without shadows.
+//! their common edge.
+//!
+//! **Cast shadows** (`relief`, with `shading` and `shadows` on) come from a sun-visibility field
+//! over the whole DEM ([`sun_visibility`]), computed once per map on its first `relief` tile and
+//! kept with the map: a tile reads the field at its own cells, so a shadow longer than a tile (or
+//! than the halo) continues into the next tile exactly as in the whole-DEM result.
 //!
 //! **Resampling.** Pixel centres are mapped to the DEM's grid through nodes every
 //! [`NODE_PX`] pixels (Web Mercator → WGS 84 → the DEM's CRS → fractional column and row), and
@@ -122,6 +126,8 @@ pub struct MapSource {
     /// x = x0 + col·a, y = y0 + row·e (cell corners, CRS units).
     transform: [f64; 4],
     info: MapInfo,
+    /// The whole DEM's sun visibility (cast shadows), made by the first `relief` tile.
+    sun: std::sync::OnceLock<Vec<f32>>,
 }
 
 /// Which cells a region is computed on.
@@ -222,6 +228,20 @@ impl MapSource {
             params,
             transform,
             info,
+            sun: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// Whether `relief` draws cast shadows (`shading` and `shadows` both on).
+    fn casts_shadows(&self) -> bool {
+        self.params.shading && self.params.shadows
+    }
+
+    /// The sun visibility of every cell (see [`sun_visibility`]), computed on the first call.
+    pub fn sun_field(&self) -> &[f32] {
+        self.sun.get_or_init(|| {
+            let azimuth = self.params.descriptor.sun_azimuth_deg.unwrap_or(180.0);
+            sun_visibility(&self.dem, azimuth, self.params.sun_elevation_deg as f32)
         })
     }
 
@@ -414,7 +434,15 @@ fn layer_field(src: &MapSource, layer: Layer, cells: Cells) -> Field {
             if layer == Layer::Snow {
                 (1, t.into_iter().map(|t| 1.0 - t).collect())
             } else {
-                (3, relief(&window, &t, p))
+                let sun = src.casts_shadows().then(|| {
+                    let field = src.sun_field();
+                    let mut v = Vec::with_capacity(w * h);
+                    for r in cells.r0..cells.r1 {
+                        v.extend_from_slice(&field[r * dem.width + cells.c0..][..w]);
+                    }
+                    v
+                });
+                (3, relief(&window, &t, sun.as_deref(), p))
             }
         }
     };
@@ -427,9 +455,16 @@ fn layer_field(src: &MapSource, layer: Layer, cells: Cells) -> Field {
 }
 
 /// Linear RGB per cell of the `relief` layer: §4.2's blend t·rock + (1 − t)·snow (the sea in
-/// `sea_color`), times `ambient + (1 − ambient)·max(0, n·l)` for the sun at the resolved azimuth
-/// and `sun_elevation_deg` (`shading: false`: unshaded).
-fn relief(dem: &Dem, t: &[f32], p: &SnowTerrainParams) -> Vec<f32> {
+/// `sea_color`), times the shade `(ambient + (1 − ambient)·v·max(0, n·l)) / (ambient +
+/// (1 − ambient)·sin(elevation))` for the sun at the resolved azimuth and `sun_elevation_deg`,
+/// v the cell's sun visibility (`sun`, 1 without cast shadows), each channel at most 1
+/// (`shading: false`: unshaded).
+///
+/// The shade is normalised to level, sunlit ground, as a hillshade multiplied over a map: a
+/// snowfield on a plain shows the snow colour itself (white, not the pale grey an unnormalised
+/// `ambient + (1 − ambient)·n·l` of at most ≈ 0.7 gave at the default 35° sun), slopes facing
+/// the sun brighten to white, and slopes away from it and cast shadows darken.
+fn relief(dem: &Dem, t: &[f32], sun: Option<&[f32]>, p: &SnowTerrainParams) -> Vec<f32> {
     let (w, h) = (dem.width, dem.height);
     let rock = p.rock_linear();
     let snow = p.snow_color.srgb8().map(srgb8_to_linear);
@@ -440,6 +475,7 @@ fn relief(dem: &Dem, t: &[f32], p: &SnowTerrainParams) -> Vec<f32> {
     let azimuth = p.descriptor.sun_azimuth_deg.unwrap_or(180.0);
     let light = light_from(azimuth, p.sun_elevation_deg as f32);
     let (dx, dy) = (dem.dx as f32, dem.dy as f32);
+    let level = p.ambient + (1.0 - p.ambient) * light[1].max(0.0);
     let mut out = vec![f32::NAN; w * h * 3];
     out.par_chunks_mut(3).enumerate().for_each(|(k, px)| {
         let (hk, tk) = (dem.heights[k], t[k]);
@@ -453,15 +489,117 @@ fn relief(dem: &Dem, t: &[f32], p: &SnowTerrainParams) -> Vec<f32> {
         };
         let shade = if p.shading {
             let n = normal(&dem.heights, w, h, k % w, k / w, dx, dy);
-            p.ambient + (1.0 - p.ambient) * dot(n, light).max(0.0)
+            let v = sun.map_or(1.0, |s| s[k]);
+            (p.ambient + (1.0 - p.ambient) * v * dot(n, light).max(0.0)) / level.max(1e-3)
         } else {
             1.0
         };
         for i in 0..3 {
-            px[i] = albedo[i] * shade;
+            px[i] = (albedo[i] * shade).min(1.0);
         }
     });
     out
+}
+
+/// Sun visibility of every cell of `dem`, 0 (in a cast shadow) to 1 (lit), for a sun at compass
+/// `azimuth_deg` and `elevation_deg`: the cell is lit when it is not below the *shadow surface*
+/// that the terrain toward the sun casts.
+///
+/// One sweep away from the sun (O(cells), no ray marching): the grid is walked slice by slice
+/// along its axis closest to the sun's direction (columns or rows), starting on the sun's side.
+/// A cell's predecessor toward the sun lies on the previous slice, at a fractional position on
+/// the other axis; the shadow surface there, S = max(S_prev, h_prev) − d·tan(elevation) (d the
+/// horizontal step, metres), is interpolated linearly between the two cells of that slice. Edge
+/// of the grid and nodata cast nothing. A cell's visibility ramps from 0 to 1 while its height
+/// rises from half a step's drop below S to half a step above, so shadow edges are smooth rather
+/// than staircased. The cells of a slice are independent (in parallel); slices run in order.
+///
+/// Cost: O(cells) time, the field plus two slices of memory; strided reads when slicing by
+/// columns.
+pub fn sun_visibility(dem: &Dem, azimuth_deg: f32, elevation_deg: f32) -> Vec<f32> {
+    let (w, h) = (dem.width, dem.height);
+    let mut vis = vec![1.0f32; w * h];
+    if w == 0 || h == 0 || elevation_deg >= 90.0 {
+        return vis;
+    }
+    let az = f64::from(azimuth_deg).to_radians();
+    let tan_el = f64::from(elevation_deg).to_radians().tan().max(1e-6);
+    // Toward the sun, in cells per metre: columns east, rows south.
+    let uc = az.sin() / dem.dx.abs().max(1e-9);
+    let ur = -az.cos() / dem.dy.abs().max(1e-9);
+    let by_columns = uc.abs() >= ur.abs();
+    // Slices along the primary axis; `n` cells per slice along the secondary one.
+    let (slices, n, up, us) = if by_columns {
+        (w, h, uc, ur)
+    } else {
+        (h, w, ur, uc)
+    };
+    // One slice step toward the sun: ±1 on the primary axis, `shift` on the secondary, `d`
+    // metres horizontally, and the drop of the sun's ray over it.
+    let shift = us / up.abs();
+    let d = 1.0 / up.abs();
+    let drop = (d * tan_el) as f32;
+    let at = |slice: usize, i: usize| -> usize {
+        if by_columns {
+            i * w + slice
+        } else {
+            slice * w + i
+        }
+    };
+    // The first slice is on the sun's side.
+    let order: Vec<usize> = if up > 0.0 {
+        (0..slices).rev().collect()
+    } else {
+        (0..slices).collect()
+    };
+    // Per cell of the previous slice: max(S, h), the top of what casts shadow onward.
+    let mut top = vec![f32::NEG_INFINITY; n];
+    let mut next = vec![f32::NEG_INFINITY; n];
+    let mut out = vec![1.0f32; n];
+    for &slice in &order {
+        let heights = &dem.heights;
+        let prev = &top;
+        next.par_iter_mut()
+            .zip(out.par_iter_mut())
+            .enumerate()
+            .for_each(|(i, (nx, o))| {
+                let hk = heights[at(slice, i)];
+                // (The first slice's predecessors are all −∞: no shadow.)
+                let s = {
+                    let pos = i as f64 + shift;
+                    let p0 = pos.floor();
+                    let f = (pos - p0) as f32;
+                    let get = |j: f64| -> f32 {
+                        if j < 0.0 || j >= n as f64 {
+                            f32::NEG_INFINITY
+                        } else {
+                            prev[j as usize]
+                        }
+                    };
+                    let (a, b) = (get(p0), get(p0 + 1.0));
+                    // A side outside the grid (or below every cell) does not dilute the other.
+                    let s = if a == f32::NEG_INFINITY || f == 1.0 {
+                        b
+                    } else if b == f32::NEG_INFINITY || f == 0.0 {
+                        a
+                    } else {
+                        a + (b - a) * f
+                    };
+                    s - drop
+                };
+                *o = if hk.is_nan() {
+                    1.0
+                } else {
+                    ((hk - s) / drop + 0.5).clamp(0.0, 1.0)
+                };
+                *nx = if hk.is_nan() { s } else { s.max(hk) };
+            });
+        for (i, &v) in out.iter().enumerate() {
+            vis[at(slice, i)] = v;
+        }
+        std::mem::swap(&mut top, &mut next);
+    }
+    vis
 }
 
 /// Unit vector toward a sun at compass `azimuth_deg` and `elevation_deg`, in (east, up, south).

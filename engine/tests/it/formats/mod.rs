@@ -1,5 +1,6 @@
 //! The readers and writers: DEMs, meshes, volumes.
 
+mod cog;
 mod dem;
 mod mesh;
 mod volume;

@@ -2,19 +2,21 @@
 //! own window of the DEM grown by the descriptor's reach, equals the same pixels resampled from
 //! the whole-DEM result within 1/255 per channel, at two zooms, on a projected DEM (Olinda, UTM
 //! 25S) and a geographic one (Jacksboro, EPSG:4326); and the whole-DEM result the tiles are held
-//! to is the pipeline's own descriptor.
+//! to is the pipeline's own descriptor. Cast shadows longer than a tile and its halo continue
+//! across tile edges (a sun-visibility field over the whole map).
 
 use std::path::PathBuf;
 
 use phenomena_engine::formats::dem::{decode_dem, DemOptions};
+use phenomena_engine::geom::heightfield::GeoRef;
 use phenomena_engine::geom::mercator::{ground_resolution, lonlat_to_mercator, mercator_to_pixel};
 use phenomena_engine::geom::Dem;
 use phenomena_engine::params::Limits;
 use phenomena_engine::render::RgbaImage;
 use phenomena_engine::snow_terrain::descriptor::compute;
 use phenomena_engine::snow_terrain::tiles::{
-    decode_terrain_rgb, decode_terrarium, render_region, render_tile, Layer, MapSource, Region,
-    Window,
+    decode_terrain_rgb, decode_terrarium, render_region, render_tile, sun_visibility, Layer,
+    MapSource, Region, Window,
 };
 use phenomena_engine::snow_terrain::SnowTerrainParams;
 use phenomena_engine::NoControl;
@@ -223,4 +225,155 @@ fn tiles_off_the_dem_are_empty() {
     let tile = render_tile(&src, Layer::Hillshade, z, cx, cy, 256).unwrap();
     let n = opaque(&tile);
     assert!(n > 100 && n < 256 * 256, "{n} opaque pixels at z{z}");
+}
+
+// ---------- cast shadows across tiles ----------
+
+/// Geographic grid: 0.0003° cells from (10° E, 47° N), a plane rising 0.5 m per column to the
+/// east, with `block` (rows, columns) raised by 600 m.
+fn ridge_dem(n: usize, rows: std::ops::Range<usize>, cols: std::ops::Range<usize>) -> Dem {
+    let step = 0.0003;
+    let mut heights = Vec::with_capacity(n * n);
+    for r in 0..n {
+        for c in 0..n {
+            let wall = if rows.contains(&r) && cols.contains(&c) {
+                600.0
+            } else {
+                0.0
+            };
+            heights.push(1000.0 + 0.5 * c as f32 + wall);
+        }
+    }
+    let lat = 47.0 - step * n as f64 / 2.0;
+    Dem {
+        width: n,
+        height: n,
+        heights,
+        dx: step * 111_320.0 * lat.to_radians().cos(),
+        dy: step * 111_320.0,
+        georef: GeoRef {
+            transform: Some([10.0, step, 0.0, 47.0, 0.0, -step]),
+            epsg: Some(4326),
+            geographic: true,
+            ..Default::default()
+        },
+    }
+}
+
+/// The field itself: a 600 m wall with the sun at 15° casts a shadow 600 / tan 15° ≈ 2,239 m
+/// long away from the sun, on the flat and nowhere else; an oblique sun casts it along its
+/// azimuth.
+#[test]
+fn sun_visibility_casts_shadows_of_the_right_length() {
+    let dem = ridge_dem(240, 180..190, 40..200);
+    let len_cells = 600.0 / 15f64.to_radians().tan() / dem.dy; // ≈ 67 rows
+    let v = sun_visibility(&dem, 180.0, 15.0);
+    let at = |r: usize, c: usize| v[r * 240 + c];
+    // Sun in the south: the shadow lies north of the wall (rows above 180).
+    let tip = 180.0 - len_cells;
+    assert_eq!(at((tip + 4.0) as usize, 120), 0.0);
+    assert_eq!(at(150, 120), 0.0);
+    assert_eq!(at((tip - 4.0) as usize, 120), 1.0);
+    assert_eq!(at(150, 20), 1.0, "beside the wall");
+    assert_eq!(at(200, 120), 1.0, "on the sun's side");
+    assert_eq!(at(185, 120), 1.0, "on the wall");
+    // Sun in the south-east (135°): a pillar's shadow runs north-west, d metres long.
+    let dem = ridge_dem(240, 150..156, 150..156);
+    let v = sun_visibility(&dem, 135.0, 15.0);
+    // 1,500 m from the pillar toward the north-west is shadow, the same distance north-east is
+    // lit (the pillar's top is 600 m up; its shadow reaches ≈ 2,239 m).
+    let (dc, dr) = (
+        (1500.0 / 2f64.sqrt() / dem.dx).round() as usize,
+        (1500.0 / 2f64.sqrt() / dem.dy).round() as usize,
+    );
+    assert_eq!(v[(152 - dr) * 240 + (152 - dc)], 0.0, "north-west");
+    assert_eq!(v[(152 - dr) * 240 + (152 + dc)], 1.0, "north-east");
+}
+
+/// A shadow much longer than a tile and its halo: the tiles over its far end (which do not
+/// contain the wall, nor does their window) are dark, equal the whole-DEM result within 1/255
+/// across every seam of a 3×3 block straddling the shadow's tip, and are darker than the same
+/// tiles without cast shadows.
+#[test]
+fn cast_shadows_continue_across_tile_edges() {
+    let params = json!({"sun_azimuth_deg": 180, "sun_elevation_deg": 15});
+    let p = SnowTerrainParams::from_json(&params, &Limits::default()).unwrap();
+    let dem = ridge_dem(240, 180..190, 40..200);
+    let src = MapSource::new(dem.clone(), &p).unwrap();
+    let p_off = SnowTerrainParams::from_json(
+        &json!({"sun_azimuth_deg": 180, "sun_elevation_deg": 15, "shadows": false}),
+        &Limits::default(),
+    )
+    .unwrap();
+    let flat = MapSource::new(dem.clone(), &p_off).unwrap();
+    let tip = 180.0 - 600.0 / 15f64.to_radians().tan() / dem.dy;
+    // The tile holding the shadow's tip at zoom 16 (tiles ≈ 400 m, 12 rows).
+    let z = 16;
+    let (lon, lat) = (10.0 + 120.5 * 0.0003, 47.0 - (tip + 0.5) * 0.0003);
+    let (mx, my) = lonlat_to_mercator(lon, lat);
+    let (px, py) = mercator_to_pixel(z, 256, mx, my);
+    let (cx, cy) = ((px / 256.0) as u64, (py / 256.0) as u64);
+    let block = Region::tiles(z, cx - 1, cy - 1, 3, 3, 256).unwrap();
+    let whole = render_region(&src, Layer::Relief, &block, Window::Whole).unwrap();
+    let unshadowed = render_region(&flat, Layer::Relief, &block, Window::Whole).unwrap();
+    // The block lies far from the wall: more than its halo away from every tile's window.
+    let block_south_row = tip + 1.5 * 256.0 * ground_resolution(z, lat) / dem.dy;
+    assert!(
+        180.0 - block_south_row > 2.0 * src.halo() as f64,
+        "block rows to {block_south_row}, halo {}",
+        src.halo()
+    );
+    let mut darker = 0;
+    for j in 0..3u32 {
+        for i in 0..3u32 {
+            let tile = render_tile(
+                &src,
+                Layer::Relief,
+                z,
+                cx - 1 + u64::from(i),
+                cy - 1 + u64::from(j),
+                256,
+            )
+            .unwrap();
+            let d = max_diff(&whole, &tile, i, j);
+            assert!(
+                d <= 1,
+                "relief tile ({i}, {j}): {d}/255 off the whole-DEM result"
+            );
+        }
+    }
+    // South of the tip (bottom row of tiles) is in shadow, north of it (top row) is lit.
+    let mean_red = |img: &RgbaImage, y0: u32, y1: u32| -> f64 {
+        let mut s = 0.0;
+        for y in y0..y1 {
+            for x in 0..img.width {
+                s += f64::from(img.pixel(x, y)[0]);
+            }
+        }
+        s / f64::from((y1 - y0) * img.width)
+    };
+    let (top, bottom) = (mean_red(&whole, 0, 256), mean_red(&whole, 512, 768));
+    let (top_off, bottom_off) = (
+        mean_red(&unshadowed, 0, 256),
+        mean_red(&unshadowed, 512, 768),
+    );
+    assert!(
+        (top - top_off).abs() < 1.0,
+        "lit north of the tip: {top} vs {top_off}"
+    );
+    assert!(
+        bottom < bottom_off - 20.0,
+        "shadow south of the tip: {bottom} vs {bottom_off}"
+    );
+    for (a, b) in whole.data.chunks(4).zip(unshadowed.data.chunks(4)) {
+        if u16::from(a[0]) + 10 < u16::from(b[0]) {
+            darker += 1;
+        }
+    }
+    assert!(darker > 256 * 256, "{darker} pixels in cast shadow");
+    std::fs::create_dir_all(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let _ = std::fs::write(
+        format!("{}/cast_shadow_block.png", env!("CARGO_TARGET_TMPDIR")),
+        phenomena_engine::formats::png_write::encode_rgba(&whole),
+    );
 }
