@@ -74,6 +74,14 @@ fn params(width: u32, height: u32) -> SnowTerrainParams {
     SnowTerrainParams::from_json(&v, &Limits::default()).expect("valid params")
 }
 
+/// `run`'s parameters for `preset` at `width × height`, `outputs: ["render.png"]`.
+fn preset_params(preset: &str, width: u32, height: u32) -> SnowTerrainParams {
+    let v = serde_json::json!({
+        "preset": preset, "width": width, "height": height, "outputs": ["render.png"],
+    });
+    SnowTerrainParams::from_json(&v, &Limits::default()).expect("valid params")
+}
+
 /// The render of `run` with default parameters (camera and lighting as `run` builds them).
 fn render(dem: &Dem, color: &[[f32; 3]], w: u32, h: u32) -> phenomena_engine::render::RgbaImage {
     overview_render(dem, color, w, h).expect("not canceled")
@@ -111,6 +119,14 @@ fn stages(c: &mut Criterion) {
     g.bench_function("paper_400x200_900x600_image", |b| {
         b.iter(|| run(&paper, &pp_img, &NoControl).expect("not canceled"))
     });
+    // The issue-17 speed criterion, per preset: `run` with `outputs: ["render.png"]` and no other
+    // parameter but the size (`winter`, the default) or `preset: paper` (the paper's look).
+    for preset in ["winter", "paper"] {
+        let pp = preset_params(preset, 900, 600);
+        g.bench_function(BenchmarkId::new("paper_400x200_900x600_run", preset), |b| {
+            b.iter(|| run(&paper, &pp, &NoControl).expect("not canceled"))
+        });
+    }
 
     // Stages at 4096².
     let n = 4096;
@@ -178,6 +194,16 @@ fn stages(c: &mut Criterion) {
             encode_rgba(&render(&dem, &color, 1920, 1080))
         })
     });
+    // The 4096² target through `run` (descriptor, colour, the view's set-up, render, PNG) per
+    // preset: what `phenomena render snow-terrain --set 'outputs=["render.png"]'` does after
+    // decoding the DEM.
+    g.measurement_time(Duration::from_secs(20));
+    for preset in ["winter", "paper"] {
+        let pp = preset_params(preset, 1920, 1080);
+        g.bench_function(BenchmarkId::new("run_4096_1080p_image", preset), |b| {
+            b.iter(|| run(&dem, &pp, &NoControl).expect("not canceled"))
+        });
+    }
     drop((d, color, image, dem, snow));
 
     // Scaling with the number of cells: the descriptor alone, and descriptor + colour + 1080p

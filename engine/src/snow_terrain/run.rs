@@ -66,10 +66,11 @@ fn world_heights(dem: &Dem, exaggeration: f32) -> std::borrow::Cow<'_, [f32]> {
     }
 }
 
-/// The view's vertical exaggeration: automatic ([`view::auto_exaggeration`]) or the given one.
-fn view_exaggeration(dem: &Dem, p: &SnowTerrainParams) -> f32 {
+/// The view's vertical exaggeration: automatic ([`view::auto_exaggeration`], from the DEM's
+/// relief and extent) or the given one.
+fn view_exaggeration(relief: Option<(f64, f64)>, p: &SnowTerrainParams) -> f32 {
     if p.view.auto_exaggeration {
-        view::auto_exaggeration(dem)
+        view::auto_exaggeration_of(relief)
     } else {
         p.descriptor.vertical_exaggeration
     }
@@ -147,8 +148,19 @@ fn run_in_pool(
 
     // The descriptor and terrain.glb see `vertical_exaggeration`; the render sees the view's
     // (automatic unless given, see `View::auto_exaggeration`).
-    let exaggeration = view_exaggeration(dem, p);
-    let heights = world_heights(dem, exaggeration);
+    // The DEM's statistics, once (the exaggeration, the report's relief and elevations).
+    let stats = dem.stats();
+    let relief = view::relief_and_extent_of(dem, stats);
+    let exaggeration = view_exaggeration(relief, p);
+    // What the asked outputs need (`outputs`): the colours feed the render and terrain.glb
+    // only, the rendered heights the render only (terrain.glb takes `vertical_exaggeration`'s).
+    let wants_render = p.wants(TerrainOutput::Render);
+    let wants_color = wants_render || p.wants(TerrainOutput::Glb);
+    let heights = if wants_render {
+        world_heights(dem, exaggeration)
+    } else {
+        std::borrow::Cow::Borrowed(&dem.heights[..0])
+    };
     let light = lighting(dem, p);
     // The render's set-up that needs only the heights and the camera (path choice, mesh,
     // rasteriser set-up, gradients, sun map: `prepare_view`) runs beside the descriptor and the
@@ -160,13 +172,16 @@ fn run_in_pool(
         let (dc, geometry) = rayon::join(
             || -> Result<_, Canceled> {
                 let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
+                if !wants_color {
+                    return Ok((d, Vec::new(), None));
+                }
                 ctl.progress("colour", DESCRIPTOR_END);
                 let t0 = Instant::now();
                 let color = colors(dem, &d.t, p, rock);
-                Ok((d, color, ms(t0)))
+                Ok((d, color, Some(ms(t0))))
             },
             || -> Result<_, Canceled> {
-                if !p.wants(TerrainOutput::Render) {
+                if !wants_render {
                     return Ok(None);
                 }
                 let t0 = Instant::now();
@@ -192,7 +207,9 @@ fn run_in_pool(
         );
         (dc?, geometry?)
     };
-    timings.push(("colour".to_string(), color_ms));
+    if let Some(ms) = color_ms {
+        timings.push(("colour".to_string(), ms));
+    }
 
     // The outputs that do not need the picture (snow_cover.tif, descriptor.png, terrain.glb)
     // and the report's figures are made while the render draws (they read the descriptor and
@@ -246,8 +263,8 @@ fn run_in_pool(
                             rayon::join(
                                 || {
                                     p.wants(TerrainOutput::Glb).then(|| {
-                                        let glb_heights = if exaggeration
-                                            == p.descriptor.vertical_exaggeration
+                                        let glb_heights = if wants_render
+                                            && exaggeration == p.descriptor.vertical_exaggeration
                                         {
                                             std::borrow::Cow::Borrowed(&*heights)
                                         } else {
@@ -266,7 +283,7 @@ fn run_in_pool(
                                 },
                                 || {
                                     (
-                                        report_figures(dem, &snow),
+                                        report_figures(&snow, stats),
                                         snow_by_elevation_decile(&dem.heights, &snow),
                                     )
                                 },
@@ -327,8 +344,8 @@ fn run_in_pool(
         "view": {
                         "vertical_exaggeration": exaggeration,
             "vertical_exaggeration_auto": p.view.auto_exaggeration,
-            "relief_m": view::relief_and_extent(dem).map(|r| r.0),
-            "extent_m": view::relief_and_extent(dem).map(|r| r.1),
+            "relief_m": relief.map(|r| r.0),
+            "extent_m": relief.map(|r| r.1),
         },
         "ortho": rock.map(|r| json!({"placement": r.placement, "coverage": r.coverage})),
         "snow_covered_fraction": covered as f64 / valid.max(1) as f64,
@@ -356,7 +373,10 @@ fn run_in_pool(
 /// covered cells, Σ snow) per chunk, summed in chunk order: the same figures whatever the
 /// thread count.
 #[allow(clippy::type_complexity)]
-fn report_figures(dem: &Dem, snow: &[f32]) -> (usize, usize, f64, Option<(f32, f32, f64)>) {
+fn report_figures(
+    snow: &[f32],
+    stats: Option<(f32, f32, f64)>,
+) -> (usize, usize, f64, Option<(f32, f32, f64)>) {
     let parts: Vec<(usize, usize, f64)> = snow
         .par_chunks(1 << 16)
         .map(|c| {
@@ -370,7 +390,7 @@ fn report_figures(dem: &Dem, snow: &[f32]) -> (usize, usize, f64, Option<(f32, f
     let (valid, covered, total) = parts
         .iter()
         .fold((0, 0, 0.0), |(n, k, s), p| (n + p.0, k + p.1, s + p.2));
-    (valid, covered, total / valid.max(1) as f64, dem.stats())
+    (valid, covered, total / valid.max(1) as f64, stats)
 }
 
 /// `sweep.png`: one tile per sweep value, each a full descriptor + render at a third of the
@@ -401,7 +421,8 @@ fn sweep_sheet(
             progress_span.0 + (progress_span.1 - progress_span.0) * (i as f32 + 1.0) / n as f32;
         let d = descriptor::compute(dem, &run.descriptor, ctl, (f0, f1))?;
         let color = colors(dem, &d.t, run, rock);
-        let heights = world_heights(dem, view_exaggeration(dem, run));
+        let relief = view::relief_and_extent(dem);
+        let heights = world_heights(dem, view_exaggeration(relief, run));
         let scene = scene_of(dem, &heights, &color);
         let accel = TerrainAccel::new(&scene);
         let camera = view::camera(

@@ -264,6 +264,14 @@ fn outputs_choose_the_files_and_leave_them_unchanged() {
             want.as_array().unwrap().contains(&json!("render.png")),
             "{want}"
         );
+        // The colours only for what draws them (issue 19: snow_cover.tif alone is the
+        // descriptor and its encoder).
+        let asked = want.as_array().unwrap();
+        assert_eq!(
+            stages(&outs).contains(&"colour".to_string()),
+            asked.contains(&json!("render.png")) || asked.contains(&json!("terrain.glb")),
+            "{want}"
+        );
     }
 }
 
