@@ -37,7 +37,8 @@ const INPUT_KEYS: &[&str] = &["bounds", "dims"];
 /// sun-colour edit at that view reads (`phenomena_engine::cloud::layers`).
 const LINEAR: &str = "linear";
 const LAYERS_BIN: &str = phenomena_engine::registry::LAYERS;
-/// How long an edit on a still-pending base version waits for it before answering 409.
+/// How long an edit on a still-pending base version waits for it before answering 409 (at most
+/// the server's `max_wait_secs`).
 const BASE_WAIT: Duration = Duration::from_secs(30);
 
 /// A version as the API shows it.
@@ -228,7 +229,7 @@ fn take_version(body: &mut Map<String, Value>, field: &str) -> Result<Option<u32
 }
 
 /// The version to use: `n`, or the newest one that has not failed; a pending version is waited
-/// for (up to [`BASE_WAIT`]) and a failed one refused.
+/// for (up to [`BASE_WAIT`], at most `max_wait_secs`) and a failed one refused.
 async fn ready_version(
     st: &AppState,
     id: &str,
@@ -252,7 +253,8 @@ async fn ready_version(
     let mut scene = scene;
     if v.status == VersionStatus::Pending {
         if let Some(job) = &v.job {
-            st.jobs.wait(job, BASE_WAIT).await;
+            let wait = BASE_WAIT.min(Duration::from_secs(st.cfg.max_wait_secs));
+            st.jobs.wait(job, wait).await;
         }
         scene = settled(st, id).await?;
         v = pick(&scene).unwrap_or(v);

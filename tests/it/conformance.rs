@@ -77,6 +77,10 @@ fn schemathesis_finds_no_failures() {
         c.max_output_pixels = MAX_PIXELS;
         c.job_timeout_secs = 20;
         c.max_wait_secs = 2;
+        // Positive cases carry real files now (hooks.py), so submissions queue real jobs: a
+        // short queue bounds the work running behind the checks (a full queue is a documented
+        // 429, answered after the params are validated).
+        c.queue_capacity = 16;
     }));
     // The example files, for the hooks' positive multipart cases.
     let files = tempfile::tempdir().unwrap();
