@@ -213,7 +213,12 @@ fn lenient_header(bytes: &[u8]) -> Option<(Vec<u8>, usize, usize)> {
         } else {
             // The line's own text becomes the comment's (its terminator kept).
             out.extend_from_slice(b"comment ");
-            out.extend_from_slice(line.trim_ascii_start());
+            // Leading blanks dropped, the line's terminator kept (an empty line stays a line).
+            let text = line
+                .iter()
+                .position(|&b| b != b' ' && b != b'\t')
+                .map_or(&line[line.len()..], |i| &line[i..]);
+            out.extend_from_slice(text);
             turned += 1;
         }
         start = end;
