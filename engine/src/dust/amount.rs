@@ -17,7 +17,8 @@
 //!   a per-vertex angle hashed from the vertex index (so neighbouring vertices do not share the
 //!   same directions and banding turns into fine noise — still deterministic).
 //! - A ray starts at P + ε·N (ε = 10⁻⁴ × the bounding-box diagonal, so the surface itself does not
-//!   occlude) and *escapes* when it hits no triangle (obvhs's compressed wide BVH, any hit).
+//!   occlude) and *escapes* when it hits no triangle (obvhs's compressed wide BVH, any hit,
+//!   through [`crate::geom::bvh::RayScene`]).
 //! - A direction below the vertex's own tangent plane (d·N ≤ 0) is not cast and counts as escaped:
 //!   the surface's self-shadowing is already the max(0, N·U)^s term, and E measures only the
 //!   occlusion by the *rest* of the scene. Hence a lone tilted plane has E = 1 and D = K·cos^s θ
@@ -34,11 +35,9 @@
 //! thread count (each vertex is computed independently and written to its own slot).
 
 use glam::Vec3A;
-use obvhs::cwbvh::CwBvh;
-use obvhs::ray::Ray;
-use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
+use crate::geom::bvh::RayScene;
 use crate::geom::mesh::Mesh;
 use crate::geom::vec::{unit, Vec3};
 
@@ -136,11 +135,11 @@ fn tangent_frame(u: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     (t, b)
 }
 
-/// The scene for the exposure rays: obvhs's compressed wide BVH (CWBVH, "medium" SAH/PLOC build)
-/// over the mesh's triangles.
+/// The scene for the exposure rays: obvhs's compressed wide BVH over the mesh's triangles,
+/// built so that it holds on any real mesh ([`crate::geom::bvh::RayScene`]: depth within the
+/// traversal stack, the scene scaled to the unit box).
 pub struct ExposureScene {
-    bvh: CwBvh,
-    triangles: Vec<Triangle>,
+    scene: RayScene,
     /// Ray-origin offset along the normal: 10⁻⁴ × the bounding-box diagonal.
     epsilon: f32,
 }
@@ -148,7 +147,7 @@ pub struct ExposureScene {
 impl std::fmt::Debug for ExposureScene {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ExposureScene")
-            .field("triangles", &self.triangles.len())
+            .field("scene", &self.scene)
             .field("epsilon", &self.epsilon)
             .finish()
     }
@@ -156,28 +155,13 @@ impl std::fmt::Debug for ExposureScene {
 
 impl ExposureScene {
     /// Builds the BVH over `mesh` (allocates; O(T log T)). Triangles of zero area are left out:
-    /// no ray can be stopped by them, and on real models (a Sweet Home 3D biplane with 212 of
-    /// them) they made obvhs's tree deeper than its 32-entry traversal stack.
+    /// no ray can be stopped by them.
     pub fn new(mesh: &Mesh) -> Self {
         let v = |i: u32| {
             let p = mesh.positions[i as usize];
             Vec3A::new(p[0], p[1], p[2])
         };
-        let triangles: Vec<Triangle> = mesh
-            .triangles
-            .iter()
-            .map(|t| Triangle {
-                v0: v(t[0]),
-                v1: v(t[1]),
-                v2: v(t[2]),
-            })
-            .filter(|t| (t.v1 - t.v0).cross(t.v2 - t.v0).length_squared() > 0.0)
-            .collect();
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &triangles,
-            obvhs::BvhBuildParams::medium_build(),
-            &mut std::time::Duration::default(),
-        );
+        let scene = RayScene::new(mesh.triangles.iter().map(|t| [v(t[0]), v(t[1]), v(t[2])]));
         let diag = mesh
             .bounds()
             .map(|(lo, hi)| {
@@ -186,27 +170,22 @@ impl ExposureScene {
             })
             .unwrap_or(1.0);
         Self {
-            bvh,
-            triangles,
+            scene,
             epsilon: 1e-4 * diag.max(f32::MIN_POSITIVE),
         }
+    }
+
+    /// The depth of the scene's BVH (root 0), below obvhs's traversal stack of
+    /// [`crate::geom::bvh::CWBVH_STACK`].
+    pub fn depth(&self) -> usize {
+        self.scene.depth()
     }
 
     /// Whether the ray from `origin` along the unit direction `dir` hits nothing.
     #[inline]
     fn escapes(&self, origin: Vec3A, dir: [f32; 3]) -> bool {
-        if self.triangles.is_empty() {
-            return true;
-        }
-        // `+ 0.0` turns −0 into +0: obvhs 0.4's CWBVH traversal misses every hit for a direction
-        // with a −0 component (found by the snow-cover baseline tests).
-        let d = Vec3A::new(dir[0] + 0.0, dir[1] + 0.0, dir[2] + 0.0);
-        let tris = &self.triangles;
-        let prim = &self.bvh.primitive_indices;
-        self.bvh
-            .ray_traverse_miss(Ray::new_inf(origin, d), |ray, id| {
-                tris[prim[id] as usize].intersect(ray)
-            })
+        self.scene
+            .escapes(origin, Vec3A::new(dir[0], dir[1], dir[2]))
     }
 
     /// E(P) for a point `p` with unit normal `n`: the share of `dirs` (hemisphere directions

@@ -1,8 +1,9 @@
 //! Geometry, the engine's ground floor above the error types: height fields (DEMs) and their
 //! georeferencing, triangle meshes and their subdivision, density volumes, glam-based vector
-//! maths, the sun's direction and the perspective camera. Imports nothing of the engine but
-//! [`crate::error`].
+//! maths, the sun's direction, the perspective camera and a ray-casting BVH that holds on any
+//! mesh ([`bvh`]). Imports nothing of the engine but [`crate::error`].
 
+pub mod bvh;
 pub mod camera;
 pub mod heightfield;
 pub mod mercator;

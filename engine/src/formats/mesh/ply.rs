@@ -16,6 +16,11 @@
 //!   binary files the smallest possible payload for those counts against the bytes present —
 //!   all before any element is read. The fanned triangle total is checked again before the index
 //!   buffer is allocated. One part, grey (white under vertex colours); default up axis Z.
+//! - Lenient header: a header line that starts with no PLY keyword (`format`, `element`,
+//!   `property`, `comment`, `obj_info`, `end_header`) is read as a comment, as Assimp, MeshLab and
+//!   trimesh read it (Blender 2.4x wrote a bare `Created by Blender3D 247 …` line; assimp's
+//!   `Wuson.ply` has one); a note in the report says so. A line that starts with a keyword and is
+//!   malformed is still `Corrupt`.
 
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
@@ -171,11 +176,71 @@ fn min_binary_size(e: &ElementDef) -> u64 {
         .sum()
 }
 
+/// The header's keywords: a line starting with anything else is read as a comment.
+const KEYWORDS: [&[u8]; 7] = [
+    b"ply",
+    b"format",
+    b"element",
+    b"property",
+    b"comment",
+    b"obj_info",
+    b"end_header",
+];
+
+/// The header (up to and including its `end_header` line) with every line that starts with no
+/// keyword turned into a `comment` line, the offset where the payload starts and how many lines
+/// were turned; `None` when no line needs it (or the header never ends: the parser then says
+/// what is wrong). Allocates a copy of the header only.
+fn lenient_header(bytes: &[u8]) -> Option<(Vec<u8>, usize, usize)> {
+    let mut out = Vec::new();
+    let (mut start, mut turned) = (0usize, 0usize);
+    while start < bytes.len() {
+        let end = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |i| start + i + 1);
+        let line = &bytes[start..end];
+        let first = line
+            .split(|b| b.is_ascii_whitespace())
+            .find(|w| !w.is_empty())
+            .unwrap_or(b"");
+        if start == 0 && first != b"ply" {
+            // Not a PLY file: the parser says so.
+            return None;
+        }
+        if KEYWORDS.contains(&first) {
+            out.extend_from_slice(line);
+        } else {
+            // The line's own text becomes the comment's (its terminator kept).
+            out.extend_from_slice(b"comment ");
+            // Leading blanks dropped, the line's terminator kept (an empty line stays a line).
+            let text = line
+                .iter()
+                .position(|&b| b != b' ' && b != b'\t')
+                .map_or(&line[line.len()..], |i| &line[i..]);
+            out.extend_from_slice(text);
+            turned += 1;
+        }
+        start = end;
+        if first == b"end_header" {
+            return (turned > 0).then_some((out, end, turned));
+        }
+    }
+    None
+}
+
 pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputError> {
-    let mut reader: &[u8] = bytes;
-    let header = Parser::<Skip>::new()
-        .read_header(&mut reader)
-        .map_err(|e| corrupt(format!("header: {e}")))?;
+    let lenient = lenient_header(bytes);
+    let (header_bytes, mut reader): (&[u8], &[u8]) = match &lenient {
+        Some((h, end, _)) => (h, &bytes[*end..]),
+        None => (bytes, bytes),
+    };
+    let header = if lenient.is_some() {
+        Parser::<Skip>::new().read_header(&mut { header_bytes })
+    } else {
+        Parser::<Skip>::new().read_header(&mut reader)
+    }
+    .map_err(|e| corrupt(format!("header: {e}")))?;
 
     let count = |name: &str| header.elements.get(name).map_or(0, |e| e.count as u64);
     let (n_vertices, n_faces) = (count("vertex"), count("face"));
@@ -288,6 +353,12 @@ pub(super) fn decode(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputErro
     });
     drop(vertices);
     let mut builder = Builder::new();
+    if let Some((_, _, turned)) = lenient {
+        builder.note(format!(
+            "the PLY header has {turned} line(s) with no keyword (e.g. an exporter's name); read \
+             as comments"
+        ));
+    }
     builder.push_part(
         PartData {
             name: "ply".to_string(),

@@ -380,6 +380,61 @@ fn big_endian_ply() {
     ));
 }
 
+/// A header line with no keyword (Blender 2.4x's `Created by Blender3D 247 …`, as in assimp's
+/// `Wuson.ply`) is read as a comment, in binary (the payload must start right after
+/// `end_header`) and ASCII files, with a note; a malformed keyword line is still corrupt.
+#[test]
+fn ply_header_line_without_keyword_is_a_comment() {
+    let mut b = ply_quad_header("binary_little_endian")
+        .replace(
+            "comment written by the test\n",
+            "Created by Blender3D 247 - www.blender.org, source file: \n\n",
+        )
+        .into_bytes();
+    for v in PLY_VERTS {
+        for (k, c) in v.iter().enumerate() {
+            if k == 2 {
+                b.extend_from_slice(&f64::from(*c).to_le_bytes());
+            } else {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    for face in [&[0i32, 1, 2, 3][..], &[0, 1, 4]] {
+        b.push(face.len() as u8);
+        for i in face {
+            b.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    b.extend_from_slice(&0i32.to_le_bytes());
+    b.extend_from_slice(&1i32.to_le_bytes());
+    let m = decode(&b, "quad.ply").unwrap();
+    check_ply_quad(&m);
+    assert!(
+        m.notes
+            .iter()
+            .any(|n| n.contains("2 line(s) with no keyword")),
+        "{:?}",
+        m.notes
+    );
+
+    let mut s = ply_quad_header("ascii")
+        .replace("\n", "\r\n")
+        .replace("comment written by the test", "  exported by hand");
+    for v in PLY_VERTS {
+        let line: Vec<String> = v.iter().map(|c| c.to_string()).collect();
+        s += &(line.join(" ") + "\n");
+    }
+    s += "4 0 1 2 3\n3 0 1 4\n0 1\n";
+    check_ply_quad(&decode(s.as_bytes(), "quad.ply").unwrap());
+    let malformed = s.replace("element face 2", "element face two");
+    assert!(matches!(
+        decode(malformed.as_bytes(), "quad.ply"),
+        Err(InputError::Corrupt { .. })
+    ));
+    assert!(decode(b"not a ply\nend_header\n", "x.ply").is_err());
+}
+
 #[test]
 fn ascii_ply_and_its_errors() {
     let mut s = ply_quad_header("ascii");
