@@ -1,12 +1,8 @@
 """Schemathesis hooks for `tests/it/conformance.rs` (issue 20): positive cases carry real files,
-and respect the few rules of the API that OpenAPI 3.1 (JSON Schema 2020-12) cannot state.
+and respect the few rules of the API that JSON Schema cannot state.
 
-Loaded with `SCHEMATHESIS_HOOKS=hooks` and `PYTHONPATH=tests/conformance` (both set by
-`tests/it/conformance.rs`). Only cases generated in the positive mode are touched: a negative case
-keeps every violation schemathesis put in it. Every repair below is for a rule JSON Schema has no
-keyword for (a comparison between two values of the request, or with a deployment setting, or
-with what exists on the server); everything a schema can say (ranges, exclusive or dependent
-fields, per-mode edit bodies, tuple items) is said in `openapi.yaml` and not repaired here.
+Loaded with `SCHEMATHESIS_HOOKS=hooks` and `PYTHONPATH=tests/conformance`. Only cases generated in
+the positive mode are touched: a negative case keeps every violation schemathesis put in it.
 
 1. File parts. A multipart file part is bytes; `openapi.yaml` states which formats each part
    takes (`encoding.<part>.contentType`), and a schema cannot say "a DEM". The positive cases of
@@ -19,18 +15,15 @@ fields, per-mode edit bodies, tuple items) is said in `openapi.yaml` and not rep
    where the rule allows:
    - `width` × `height` at most the server's `max_output_pixels` (a deployment setting:
      `PHENOMENA_ST_MAX_PIXELS`): the height is lowered;
-   - `camera.eye` ≠ `camera.target` (two arrays compared): the eye is moved;
+   - `camera.eye` ≠ `camera.target`: the eye is moved;
    - `slope_end_deg` ≥ `slope_start_deg`, `full_snow_quantile` ≥ `snowline_quantile`
-     (snow-terrain, also against the preset's values when one is not given), and in each run of
-     a `sweep` over one of them: swapped, raised or capped;
-   - dust `bends` < `fiber_length` (default 48): `bends` lowered;
-   - snow-cover `snowfall` schedule hours strictly increasing: the pairs sorted by hour and
-     repeated hours dropped;
+     (snow-terrain, also against the `winter` preset's values when one is not given): swapped or
+     raised;
    - edit pixels (`from`, `to`, `strokes[].pixels`) inside the view (`width` × `height`,
      default 960 × 540): taken modulo the size;
+   - a `set` edit gives at least one of its fields: `kappa` is added;
    - a volume's `bounds` have min < max and sides not thinner than the documented bound: widened;
-   - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume):
-     which ids exist is the server's state, not the schema's.
+   - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume).
 3. One filter (`filter_case`), on negative cases only: see its doc.
 """
 
@@ -44,23 +37,13 @@ from schemathesis import GenerationMode
 FILES = os.environ.get("PHENOMENA_ST_FILES", "")
 MAX_PIXELS = int(os.environ.get("PHENOMENA_ST_MAX_PIXELS", "33177600"))
 
-# Each snow-terrain preset's values of the ordered pairs (engine `DescriptorParams::default` and
-# `DescriptorParams::paper`).
+# The `winter` preset's values of the ordered pairs (engine `DescriptorParams::default`).
 PRESET_PAIRS = {
-    "winter": {
-        "slope_start_deg": 35.0,
-        "slope_end_deg": 60.0,
-        "snowline_quantile": 0.3,
-        "full_snow_quantile": 0.7,
-    },
-    "paper": {
-        "slope_start_deg": 90.0,
-        "slope_end_deg": 90.0,
-        "snowline_quantile": 0.3,
-        "full_snow_quantile": 1.0,
-    },
+    "slope_start_deg": 35.0,
+    "slope_end_deg": 60.0,
+    "snowline_quantile": 0.3,
+    "full_snow_quantile": 0.7,
 }
-PAIRS = (("slope_start_deg", "slope_end_deg"), ("snowline_quantile", "full_snow_quantile"))
 # The default view of a cloud scene edit.
 EDIT_VIEW = (960, 540)
 # Default output sizes per operation (for a case that gives one side only).
@@ -70,12 +53,8 @@ DEFAULT_SIZE = {
     "submitDust": (960, 640),
     "submitCloud": (960, 540),
     "renderCloudScene": (960, 540),
-    "editCloudSceneSunColor": EDIT_VIEW,
-    "editCloudSceneAmbient": EDIT_VIEW,
-    "editCloudSceneSunDirection": EDIT_VIEW,
-    "editCloudSceneSet": EDIT_VIEW,
+    "editCloudScene": EDIT_VIEW,
 }
-EDIT_OPS = tuple(k for k in DEFAULT_SIZE if k.startswith("editCloudScene"))
 # Uploaded assets of each kind (`tests/it/conformance.rs`), for JSON bodies naming one.
 ASSETS = {
     "submitSnowTerrain": os.environ.get("PHENOMENA_ST_DEM_ASSET"),
@@ -164,14 +143,10 @@ def _distinct_eye(obj):
             cam["eye"] = [eye[0] + 1.0] + list(eye[1:])
 
 
-def _num(x):
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
-
-
-def _order(obj, lo, hi, preset):
-    a = obj.get(lo, preset[lo])
-    b = obj.get(hi, preset[hi])
-    if _num(a) and _num(b) and b < a:
+def _order(obj, lo, hi):
+    a = obj.get(lo, PRESET_PAIRS[lo])
+    b = obj.get(hi, PRESET_PAIRS[hi])
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and b < a:
         if lo in obj and hi in obj:
             obj[lo], obj[hi] = b, a
         elif lo in obj:
@@ -181,29 +156,11 @@ def _order(obj, lo, hi, preset):
 
 
 def _terrain(params):
-    """The ordered pairs, in the params and in every run of a `sweep` (each value replaces the
-    swept parameter): a swept lower bound is capped at its partner, a swept upper bound raised to
-    it."""
     if not isinstance(params, dict):
         return
-    preset = PRESET_PAIRS.get(params.get("preset", "winter"))
-    if preset is None:
-        return
-    for lo, hi in PAIRS:
-        _order(params, lo, hi, preset)
-    sweep = params.get("sweep")
-    if not isinstance(sweep, dict) or not isinstance(sweep.get("values"), list):
-        return
-    name, values = sweep.get("param"), sweep["values"]
-    for lo, hi in PAIRS:
-        if name == lo:
-            bound = params.get(hi, preset[hi])
-            if _num(bound):
-                sweep["values"] = [min(v, bound) if _num(v) else v for v in values]
-        elif name == hi:
-            bound = params.get(lo, preset[lo])
-            if _num(bound):
-                sweep["values"] = [max(v, bound) if _num(v) else v for v in values]
+    if params.get("preset", "winter") == "winter":
+        _order(params, "slope_start_deg", "slope_end_deg")
+        _order(params, "snowline_quantile", "full_snow_quantile")
 
 
 def _inside(p, w, h):
@@ -225,25 +182,7 @@ def _edit(body):
             s["pixels"] = [_inside(p, w, h) for p in s["pixels"]]
 
 
-def _dust(params):
-    """`bends` < `fiber_length`."""
-    if not isinstance(params, dict):
-        return
-    length = params.get("fiber_length", 48)
-    bends = params.get("bends", 2)
-    if isinstance(length, int) and isinstance(bends, int) and bends >= length:
-        params["bends"] = max(0, length - 1)
-
-
-def _snowfall(params):
-    """A `snowfall` schedule's hours strictly increasing."""
-    sched = params.get("snowfall") if isinstance(params, dict) else None
-    if isinstance(sched, list) and all(isinstance(p, list) and len(p) == 2 for p in sched):
-        out = []
-        for p in sorted(sched, key=lambda p: p[0]):
-            if not out or p[0] > out[-1][0]:
-                out.append(p)
-        params["snowfall"] = out
+SET_FIELDS = ("kappa", "sun_direction", "sun_azimuth_deg", "sun_color", "scattering", "albedo")
 
 
 @schemathesis.hook
@@ -286,19 +225,18 @@ def _repair(ctx, case):
         params = body.get("params")
     else:
         params = body
-    if op in DEFAULT_SIZE and op not in EDIT_OPS:
+    if op in DEFAULT_SIZE and op != "editCloudScene":
         _fit_pixels(params, DEFAULT_SIZE[op])
         _distinct_eye(params)
     if op in ("submitCloud", "createCloudScene"):
         _bounds(params)
     if op == "submitSnowTerrain":
         _terrain(params)
-    if op == "submitDust":
-        _dust(params)
-    if op == "submitSnowCover":
-        _snowfall(params)
-    if op in EDIT_OPS:
+    if op == "editCloudScene":
         _fit_pixels(body, EDIT_VIEW)
         _distinct_eye(body)
         _edit(body)
+        kind = (case.path_parameters or {}).get("kind")
+        if kind == "set" and not any(k in body for k in SET_FIELDS):
+            body["kappa"] = 1.0
     return case
