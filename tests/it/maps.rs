@@ -227,21 +227,15 @@ async fn a_dem_is_served_as_a_web_map() {
     // The elevation encodings decode to the same elevations within their steps, in the DEM's
     // range (−1 … 88 m).
     let rgb = decode(
-        &s.client
-            .get(tile("terrain-rgb", z, x, y, ""))
-            .send()
+        &get(&s, tile("terrain-rgb", z, x, y, ""))
             .await
-            .unwrap()
             .bytes()
             .await
             .unwrap(),
     );
     let ter = decode(
-        &s.client
-            .get(tile("terrarium", z, x, y, ""))
-            .send()
+        &get(&s, tile("terrarium", z, x, y, ""))
             .await
-            .unwrap()
             .bytes()
             .await
             .unwrap(),
