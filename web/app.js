@@ -7,6 +7,7 @@ import { parseYaml } from "./yaml.js";
 import { initEditor } from "./cloud.js";
 import { buildForm, resolve } from "./form.js";
 import { createViewer } from "./viewer.js";
+import { initMap } from "./map.js";
 import { MAIN, PRESETS, labelOf } from "./labels.js";
 
 /** Per pipeline: the schema of its params, the multipart part name (for labels), the example. */
@@ -625,6 +626,7 @@ async function main() {
     pipelineTab(panel, panel.dataset.pipeline, spec);
   }
   initEditor(document.getElementById("panel-editor"), spec);
+  initMap(document.getElementById("panel-map"), spec);
   document.body.dataset.ready = "true";
 }
 

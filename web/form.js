@@ -361,7 +361,7 @@ function cameraWidget(ctx, prop, id, label) {
 
 /** The whole form of a params schema: the `main` names up front in `labels`' words (label,
  * unit, help; the API name small), the rest under a closed "Advanced" section. */
-export function buildForm(spec, schema, idBase, onChange, { main = [], labels = (n) => ({ label: n, unit: "", help: "" }) } = {}) {
+export function buildForm(spec, schema, idBase, onChange, { main = [], labels = (n) => ({ label: n, unit: "", help: "" }), skip = [] } = {}) {
   const form = el("form", { class: "params", onsubmit: (e) => e.preventDefault(), novalidate: true });
   const mainBox = el("div", { class: "main-fields" });
   const moreBox = el("div", { class: "advanced-fields" });
@@ -369,7 +369,7 @@ export function buildForm(spec, schema, idBase, onChange, { main = [], labels = 
   form.append(mainBox, advanced);
   const read = {};
   const ctx = { spec, onChange };
-  const names = Object.keys(schema.properties || {}).filter((n) => !OUTSIDE.has(n));
+  const names = Object.keys(schema.properties || {}).filter((n) => !OUTSIDE.has(n) && !skip.includes(n));
   const ordered = [...main.filter((n) => names.includes(n)), ...names.filter((n) => !main.includes(n))];
   let more = 0;
   for (const name of ordered) {

@@ -56,6 +56,11 @@ const FILES: &[(&str, &str, &[u8])] = &[
         include_bytes!("../../web/viewer.js"),
     ),
     (
+        "map.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("../../web/map.js"),
+    ),
+    (
         "labels.js",
         "text/javascript; charset=utf-8",
         include_bytes!("../../web/labels.js"),
@@ -69,7 +74,7 @@ const FILES: &[(&str, &str, &[u8])] = &[
 ];
 
 /// The example inputs served by `GET /v1/examples/{name}`.
-pub const EXAMPLES: &[&str] = &["dem.asc", "mesh.obj", "volume.npy"];
+pub const EXAMPLES: &[&str] = &["dem.asc", "dem.tif", "mesh.obj", "volume.npy"];
 
 fn file(name: &str) -> Result<Response, ApiError> {
     let (_, media, bytes) = FILES
@@ -126,6 +131,7 @@ pub async fn vendor(ApiPath(path): ApiPath<String>) -> Result<Response, ApiError
 pub async fn example(ApiPath(name): ApiPath<String>) -> Result<Response, ApiError> {
     let (media, bytes) = match name.as_str() {
         "dem.asc" => ("text/plain; charset=utf-8", example_dem().into_bytes()),
+        "dem.tif" => ("image/tiff", example_dem_tif()),
         "mesh.obj" => ("model/obj", example_mesh().into_bytes()),
         "volume.npy" => ("application/octet-stream", example_volume()),
         _ => {
@@ -150,8 +156,22 @@ pub async fn example(ApiPath(name): ApiPath<String>) -> Result<Response, ApiErro
         .into_response())
 }
 
-/// A 96 × 96 ESRI ASCII grid (30 m cells): a ridge with two summits and a valley, heights
-/// 200–2200 m, so the descriptor has sheltered hollows, exposed crests and a snowline to show.
+/// The example terrain's height (m) at (`x`, `y`) in [0, 1]² (x east, y south): a ridge with two
+/// summits and a valley, 200–2200 m, so the descriptor has sheltered hollows, exposed crests and
+/// a snowline to show.
+fn example_height(x: f64, y: f64) -> f64 {
+    let peak = |px: f64, py: f64, h: f64, w: f64| {
+        h * (-((x - px).powi(2) + (y - py).powi(2)) / (w * w)).exp()
+    };
+    let ridge = 600.0 * (-((x + y - 1.0).powi(2)) / 0.08).exp();
+    200.0
+        + ridge
+        + peak(0.35, 0.4, 1300.0, 0.18)
+        + peak(0.7, 0.65, 1000.0, 0.14)
+        + 40.0 * (x * 25.0).sin() * (y * 21.0).cos()
+}
+
+/// A 96 × 96 ESRI ASCII grid (30 m cells, no CRS) of [`example_height`].
 pub fn example_dem() -> String {
     const N: usize = 96;
     let mut s = format!(
@@ -159,22 +179,65 @@ pub fn example_dem() -> String {
     );
     for r in 0..N {
         for c in 0..N {
-            let x = c as f64 / (N - 1) as f64;
-            let y = r as f64 / (N - 1) as f64;
-            let peak = |px: f64, py: f64, h: f64, w: f64| {
-                h * (-((x - px).powi(2) + (y - py).powi(2)) / (w * w)).exp()
-            };
-            let ridge = 600.0 * (-((x + y - 1.0).powi(2)) / 0.08).exp();
-            let h = 200.0
-                + ridge
-                + peak(0.35, 0.4, 1300.0, 0.18)
-                + peak(0.7, 0.65, 1000.0, 0.14)
-                + 40.0 * (x * 25.0).sin() * (y * 21.0).cos();
+            let h = example_height(c as f64 / (N - 1) as f64, r as f64 / (N - 1) as f64);
             let sep = if c + 1 == N { '\n' } else { ' ' };
             let _ = write!(s, "{h:.1}{sep}");
         }
     }
     s
+}
+
+/// Side of the georeferenced example DEM (`dem.tif`), cells: 30.7 km, about 4½ tiles across at
+/// its map's finest zoom, so a map view close in has tiles to fetch as it pans.
+pub const EXAMPLE_TIF_SIDE: usize = 1024;
+/// Its cell size, metres.
+pub const EXAMPLE_TIF_CELL: f64 = 30.0;
+/// Its north-west corner in WGS 84 / UTM zone 32N (EPSG:32632): in the Valais Alps.
+pub const EXAMPLE_TIF_ORIGIN: (f64, f64) = (390_000.0, 5_110_000.0);
+
+/// The georeferenced example's height (m) at (`x`, `y`) in [0, 1]²: [`example_height`]'s two
+/// summits and ridge, 300 m higher, with side ridges and valleys of 1–5 km (sines of four
+/// wavelengths and directions), 400–2800 m.
+fn example_tif_height(x: f64, y: f64) -> f64 {
+    use std::f64::consts::TAU;
+    // (amplitude m, cycles across the DEM, direction rad, phase rad)
+    const WAVES: [(f64, f64, f64, f64); 4] = [
+        (170.0, 6.0, 0.5, 0.3),
+        (90.0, 13.0, 2.1, 1.7),
+        (45.0, 27.0, 1.2, 4.1),
+        (20.0, 55.0, 2.8, 2.6),
+    ];
+    let mut h = 300.0 + example_height(x, y);
+    for (a, f, dir, phase) in WAVES {
+        h += a * (TAU * f * (x * dir.cos() + y * dir.sin()) + phase).sin();
+    }
+    h
+}
+
+/// A 1024 × 1024 float32 Cloud-Optimized GeoTIFF of [`example_tif_height`] with 30 m cells,
+/// placed in WGS 84 / UTM zone 32N (EPSG:32632): a DEM a map can put on the Earth
+/// (`POST /v1/maps`; the studio's Map tab). Heights are rounded to 0.1 m, as `dem.asc` writes
+/// them, so the bytes are the same on every machine.
+pub fn example_dem_tif() -> Vec<u8> {
+    use phenomena_engine::formats::geotiff_write::write_float32_geotiff;
+    use phenomena_engine::geom::heightfield::GeoRef;
+    const N: usize = EXAMPLE_TIF_SIDE;
+    let mut heights = Vec::with_capacity(N * N);
+    for r in 0..N {
+        for c in 0..N {
+            let h = example_tif_height(c as f64 / (N - 1) as f64, r as f64 / (N - 1) as f64);
+            heights.push(((h * 10.0).round() / 10.0) as f32);
+        }
+    }
+    let (x0, y0) = EXAMPLE_TIF_ORIGIN;
+    let georef = GeoRef {
+        transform: Some([x0, EXAMPLE_TIF_CELL, 0.0, y0, 0.0, -EXAMPLE_TIF_CELL]),
+        epsg: Some(32632),
+        geographic: false,
+        nodata: None,
+        tags: Default::default(),
+    };
+    write_float32_geotiff(N, N, &heights, &georef)
 }
 
 /// A Y-up OBJ scene in metres: a 4 m × 4 m ground, a table (top and four legs) and a box on

@@ -28,6 +28,7 @@ async fn page_files_are_served_with_their_types() {
         ("cloud.js", "text/javascript; charset=utf-8"),
         ("form.js", "text/javascript; charset=utf-8"),
         ("viewer.js", "text/javascript; charset=utf-8"),
+        ("map.js", "text/javascript; charset=utf-8"),
         ("labels.js", "text/javascript; charset=utf-8"),
         ("style.css", "text/css; charset=utf-8"),
     ] {
@@ -108,10 +109,13 @@ async fn vendor_files_are_served_from_the_lock_file() {
     let lock: Value =
         serde_json::from_str(&std::fs::read_to_string(root.join("web/package-lock.json")).unwrap())
             .unwrap();
-    assert_eq!(
-        v["packages"]["three"], lock["packages"]["node_modules/three"]["version"],
-        "{v}"
-    );
+    for pkg in ["three", "maplibre-gl"] {
+        assert_eq!(
+            v["packages"][pkg],
+            lock["packages"][format!("node_modules/{pkg}")]["version"],
+            "{pkg}: {v}"
+        );
+    }
     assert_eq!(v["files"], json!(listed));
     let modules = playwright_dir().join("node_modules");
     for f in &listed {
@@ -122,8 +126,10 @@ async fn vendor_files_are_served_from_the_lock_file() {
             .await
             .unwrap();
         assert_eq!(r.status(), 200, "{f}");
-        let media = if f.ends_with(".js") {
+        let media = if f.ends_with(".js") || f.ends_with(".mjs") {
             "text/javascript; charset=utf-8"
+        } else if f.ends_with(".css") {
+            "text/css; charset=utf-8"
         } else {
             "text/plain; charset=utf-8"
         };
@@ -145,6 +151,7 @@ async fn vendor_files_are_served_from_the_lock_file() {
     for path in [
         "/web/vendor/three/build/three.module.min.js",
         "/web/vendor/three/examples/jsm/",
+        "/web/vendor/maplibre-gl/dist/maplibre-gl.mjs",
     ] {
         assert!(html.contains(path), "{path}");
     }
@@ -154,7 +161,7 @@ async fn vendor_files_are_served_from_the_lock_file() {
 #[tokio::test]
 async fn examples_are_deterministic() {
     let s = Server::start(|_| {}).await;
-    for name in ["dem.asc", "mesh.obj", "volume.npy"] {
+    for name in ["dem.asc", "dem.tif", "mesh.obj", "volume.npy"] {
         let get = || async {
             let r = s
                 .client
@@ -174,6 +181,67 @@ async fn examples_are_deterministic() {
     let dem = phenomena::api::web::example_dem();
     assert_eq!(dem.lines().count(), 6 + 96);
     assert_eq!(dem.lines().nth(6).unwrap().split(' ').count(), 96);
+    s.stop().await;
+}
+
+/// `dem.tif` (issue 22) is a georeferenced GeoTIFF the Map tab's "Try the example" uses: it makes
+/// a map (`POST /v1/maps`) placed where its EPSG:32632 corner says, in the Valais Alps, with the
+/// example terrain's cells.
+#[tokio::test]
+async fn the_georeferenced_example_makes_a_map() {
+    let s = Server::start(|_| {}).await;
+    let r = s
+        .client
+        .get(s.url("/v1/examples/dem.tif"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["content-type"], "image/tiff");
+    let bytes = r.bytes().await.unwrap();
+    assert_eq!(&bytes[..4], b"II*\0", "a little-endian TIFF");
+    let asset: Value = s
+        .client
+        .post(s.url("/v1/assets?filename=dem.tif"))
+        .body(bytes)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let r = s
+        .client
+        .post(s.url("/v1/maps"))
+        .json(&json!({"asset": asset["id"], "params": {}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    let n = phenomena::api::web::EXAMPLE_TIF_SIDE as u64;
+    assert_eq!(
+        (map["width"].as_u64(), map["height"].as_u64()),
+        (Some(n), Some(n)),
+        "{map}"
+    );
+    assert!(map["crs"].as_str().unwrap().contains("32632"), "{map}");
+    // 390 000 m E, 5 110 000 m N in UTM 32N, 30.7 km a side: 7.576–7.979° E, 45.858–46.139° N
+    // (the corners by GDAL's gdaltransform).
+    let b: Vec<f64> = map["bounds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        (7.57..7.58).contains(&b[0]) && (7.975..7.985).contains(&b[2]),
+        "longitudes {b:?}"
+    );
+    assert!(
+        (45.855..45.86).contains(&b[1]) && (46.135..46.145).contains(&b[3]),
+        "latitudes {b:?}"
+    );
     s.stop().await;
 }
 
@@ -293,6 +361,24 @@ fn playwright_dir() -> PathBuf {
 /// Alone: `cargo test --test it web::studio_in_headless_chromium -- --nocapture`.
 #[test]
 fn studio_in_headless_chromium() {
+    browser_script("studio.mjs");
+}
+
+/// The Map tab (issue 22) in headless Chromium (`tests/browser/map.mjs`): the example DEM makes
+/// a map, MapLibre GL JS (from npm at build time) loads our hillshade, relief and terrain-rgb
+/// tiles through our TileJSON with no console error, the 3-D terrain is on
+/// (`map.getTerrain()`), the cursor's coordinates and ground height read back inside the map,
+/// panning fetches new tiles, a parameter change makes a new map whose picture has less snow,
+/// the snow overlay and legend, axe-core, a phone's width, and the words without npm.
+/// Screenshots: `target/browser/map-*.png`. Alone:
+/// `cargo test --test it web::map_tab_in_headless_chromium -- --nocapture`.
+#[test]
+fn map_tab_in_headless_chromium() {
+    browser_script("map.mjs");
+}
+
+/// Runs `tests/browser/{script}` with node against a server started here.
+fn browser_script(script: &str) {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let pw = playwright_dir();
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -302,7 +388,7 @@ fn studio_in_headless_chromium() {
     let s = rt.block_on(Server::start(|_| {}));
     let url = s.url("");
     let out = std::process::Command::new("node")
-        .arg(root.join("tests/browser/studio.mjs"))
+        .arg(root.join("tests/browser").join(script))
         .env("STUDIO_URL", &url)
         .env("PLAYWRIGHT_DIR", &pw)
         .env("SCREENSHOT_DIR", root.join("target/browser"))
@@ -315,7 +401,10 @@ fn studio_in_headless_chromium() {
         String::from_utf8_lossy(&out.stderr)
     );
     println!("{log}");
-    assert!(out.status.success(), "the browser test failed:\n{log}");
+    assert!(
+        out.status.success(),
+        "the browser test {script} failed:\n{log}"
+    );
 }
 
 /// `displaced.glb` in a real glTF viewer: three.js's `GLTFLoader` in headless Chromium
