@@ -7,8 +7,14 @@
 //! memory ([`SOURCES_KEPT`]), so a cold tile decodes nothing. Concurrent requests for one cold
 //! tile in this process compute it once: the first computes, the others wait for its result
 //! (a per-key `tokio::sync::OnceCell`; if the first request goes away, a waiter takes over).
+//!
+//! Warm tiles are served from memory: the tiles last served (at most [`HOT_TILE_BYTES`], first
+//! in first out) are kept with their ETag, and map records by id ([`RECORDS_KEPT`]), so a warm
+//! tile request reads no file, parses no JSON and hashes nothing. Both are safe to keep: a map id
+//! names its DEM and parameters, and a tile key its map, layer, position and renderer version
+//! ([`crate::store::maps::TILE_VERSION`]), so neither changes under its key.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -23,6 +29,21 @@ use crate::store::{Store, StoreError};
 
 /// Prepared DEMs kept in memory (most recently used first).
 pub const SOURCES_KEPT: usize = 4;
+
+/// Bytes of PNG tiles kept in memory for warm requests.
+pub const HOT_TILE_BYTES: usize = 64 << 20;
+
+/// Map records kept in memory (all forgotten when one more comes: maps are few and cheap to
+/// read again).
+pub const RECORDS_KEPT: usize = 256;
+
+/// Tiles kept in memory with their ETags, evicted first in, first out past [`HOT_TILE_BYTES`].
+#[derive(Default)]
+struct HotTiles {
+    tiles: HashMap<String, (Bytes, Arc<str>)>,
+    order: VecDeque<String>,
+    bytes: usize,
+}
 
 /// Why a tile or map could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -54,6 +75,8 @@ struct Inner {
     inflight: Mutex<HashMap<String, Arc<tokio::sync::OnceCell<Option<Bytes>>>>>,
     /// Tiles this process has computed (not read from the cache).
     computed: AtomicU64,
+    hot: Mutex<HotTiles>,
+    records: Mutex<HashMap<String, Arc<MapRecord>>>,
 }
 
 impl std::fmt::Debug for Maps {
@@ -89,6 +112,8 @@ impl Maps {
                 permits,
                 inflight: Mutex::new(HashMap::new()),
                 computed: AtomicU64::new(0),
+                hot: Mutex::new(HotTiles::default()),
+                records: Mutex::new(HashMap::new()),
             }),
         })
     }
@@ -175,6 +200,73 @@ impl Maps {
         let bytes = self.inner.store.read_blob(&rec.asset).await?;
         self.prepare(&rec.id, bytes, rec.filename.clone(), rec.params.clone())
             .await
+    }
+
+    /// The map `id` (from memory, else the store).
+    pub async fn record(&self, id: &str) -> Result<Option<Arc<MapRecord>>, MapsError> {
+        if let Some(rec) = self
+            .inner
+            .records
+            .lock()
+            .ok()
+            .and_then(|m| m.get(id).cloned())
+        {
+            return Ok(Some(rec));
+        }
+        let Some(rec) = self.inner.store.get_map(id).await? else {
+            return Ok(None);
+        };
+        let rec = Arc::new(rec);
+        if let Ok(mut m) = self.inner.records.lock() {
+            if m.len() >= RECORDS_KEPT {
+                m.clear();
+            }
+            m.insert(id.to_string(), rec.clone());
+        }
+        Ok(Some(rec))
+    }
+
+    /// [`Self::tile`] with its strong ETag (the quoted SHA-256 of the PNG), from memory when the
+    /// tile was served lately.
+    pub async fn tile_tagged(
+        &self,
+        rec: &MapRecord,
+        layer: Layer,
+        z: u8,
+        x: u64,
+        y: u64,
+        size: u32,
+    ) -> Result<Option<(Bytes, Arc<str>)>, MapsError> {
+        let key = tile_key(&rec.id, layer.name(), z, x, y, size);
+        if let Some(hit) = self
+            .inner
+            .hot
+            .lock()
+            .ok()
+            .and_then(|h| h.tiles.get(&key).cloned())
+        {
+            return Ok(Some(hit));
+        }
+        let Some(png) = self.tile(rec, layer, z, x, y, size).await? else {
+            return Ok(None);
+        };
+        let etag: Arc<str> = format!("\"{}\"", crate::store::sha256_hex(&png)).into();
+        if let Ok(mut h) = self.inner.hot.lock() {
+            if png.len() <= HOT_TILE_BYTES && !h.tiles.contains_key(&key) {
+                while h.bytes + png.len() > HOT_TILE_BYTES {
+                    let Some(old) = h.order.pop_front() else {
+                        break;
+                    };
+                    if let Some((b, _)) = h.tiles.remove(&old) {
+                        h.bytes -= b.len();
+                    }
+                }
+                h.bytes += png.len();
+                h.order.push_back(key.clone());
+                h.tiles.insert(key, (png.clone(), etag.clone()));
+            }
+        }
+        Ok(Some((png, etag)))
     }
 
     /// The tile's PNG (from the cache, else computed on the pool and cached); `None` when no
@@ -287,5 +379,22 @@ mod tests {
         assert_eq!(c, Some(a));
         assert_eq!(maps.tiles_computed(), 1, "the third from the cache");
         assert!(maps.inner.inflight.lock().unwrap().is_empty());
+
+        // Tagged: the same bytes with the PNG's SHA-256 as the ETag, the second from memory.
+        let (png, etag) = maps
+            .tile_tagged(&rec, Layer::Relief, z, x, y, 256)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(Some(png.clone()), c);
+        assert_eq!(&*etag, format!("\"{}\"", crate::store::sha256_hex(&png)));
+        assert_eq!(maps.inner.hot.lock().unwrap().bytes, png.len());
+        let again = maps
+            .tile_tagged(&rec, Layer::Relief, z, x, y, 256)
+            .await
+            .unwrap()
+            .unwrap();
+        assert!(Arc::ptr_eq(&again.1, &etag), "the second from memory");
+        assert_eq!(maps.tiles_computed(), 1);
     }
 }

@@ -133,10 +133,9 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     Ok(resp)
 }
 
-async fn record(st: &AppState, id: &str) -> Result<MapRecord, ApiError> {
+async fn record(st: &AppState, id: &str) -> Result<std::sync::Arc<MapRecord>, ApiError> {
     st.maps
-        .store()
-        .get_map(id)
+        .record(id)
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("no map {id}")))
 }
@@ -146,7 +145,9 @@ pub async fn get(
     State(st): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Json<MapView>, ApiError> {
-    Ok(Json(MapView::from(record(&st, &id).await?)))
+    Ok(Json(MapView::from(MapRecord::clone(
+        &*record(&st, &id).await?,
+    ))))
 }
 
 #[derive(Debug, Deserialize)]
@@ -284,19 +285,18 @@ pub async fn tile(
     }
     let rec = record(&st, &id).await?;
     let cache = HeaderValue::from_static(CACHE_CONTROL);
-    let Some(png) = st.maps.tile(&rec, layer, z, x, y, size).await? else {
+    let Some((png, etag)) = st.maps.tile_tagged(&rec, layer, z, x, y, size).await? else {
         let mut resp = StatusCode::NO_CONTENT.into_response();
         resp.headers_mut().insert(header::CACHE_CONTROL, cache);
         return Ok(resp);
     };
-    let etag = format!("\"{}\"", crate::store::sha256_hex(&png));
     let etag_value = HeaderValue::from_str(&etag).map_err(ApiError::internal)?;
     let matches = headers
         .get(header::IF_NONE_MATCH)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| {
             v.split(',')
-                .any(|t| t.trim() == "*" || t.trim().trim_start_matches("W/") == etag)
+                .any(|t| t.trim() == "*" || t.trim().trim_start_matches("W/") == &*etag)
         });
     let mut resp = if matches {
         StatusCode::NOT_MODIFIED.into_response()
