@@ -228,6 +228,13 @@ pub struct View {
     /// the image. Not a parameter: true unless the preset is `paper`.
     #[serde(skip)]
     pub fill_frame: bool,
+    /// Samples whose pixel spans several cells are shaded from the albedo, heights and sun
+    /// visibility box-averaged to the pixel's footprint (mipmapping;
+    /// [`crate::render::terrain::Lighting::texture_lod`]), so a big DEM drawn small shows its
+    /// snow pattern filtered instead of aliased, with far fewer anti-aliasing rays. Not a
+    /// parameter: true unless the preset is `paper` (the paper's figures point-sample).
+    #[serde(skip)]
+    pub texture_lod: bool,
 }
 
 impl View {
@@ -244,6 +251,7 @@ impl View {
                 .auto_exaggeration
                 .unwrap_or(!paper && w.vertical_exaggeration.is_none()),
             fill_frame: !paper,
+            texture_lod: !paper,
         })
     }
 }

@@ -53,6 +53,7 @@ fn lighting(dem: &Dem, p: &SnowTerrainParams) -> Lighting {
         samples: p.samples,
         ambient_occlusion: p.view.ambient_occlusion,
         sky_tint: p.view.sky_tint,
+        texture_lod: p.view.texture_lod,
         ..Lighting::default()
     }
 }

@@ -33,7 +33,7 @@ use rayon::prelude::*;
 use crate::control::{Canceled, Control};
 
 /// Largest grid the SVF is computed on directly; bigger grids are box-averaged first.
-pub const MAX_POINTS: usize = 1 << 19;
+pub const MAX_POINTS: usize = 1 << 17;
 
 /// The eight azimuths (column step, row step).
 const DIRS: [(isize, isize); 8] = [

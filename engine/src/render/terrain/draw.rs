@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use super::accel::TerrainAccel;
 use super::ao::{sky_view_factor, AoMap};
+use super::lod::ShadeLod;
 use super::raster_path::{self, render_raster, RasterSetup};
 use super::scene::{Lighting, RenderPath, TerrainScene};
 use super::shade::{Px, Shader};
@@ -100,6 +101,8 @@ pub struct PreparedView {
     /// Wall time of the sky-view factor, ms (`None` without ambient occlusion).
     ao_ms: Option<f64>,
     raster: Option<raster_path::RasterGeometry>,
+    /// The shading pyramid's geometry levels ([`Lighting::texture_lod`], ray caster only).
+    lod: Option<ShadeLod>,
     /// The image's bytes, allocated (zeroed) here so that it happens during the set-up.
     image: Vec<u8>,
 }
@@ -191,6 +194,25 @@ pub fn prepare_view(
         Some((m, ms)) => (Some(m), Some(ms)),
         None => (None, None),
     };
+    // Prefiltered shading (`lod.rs`): the angle of a pixel over the cell size, so that
+    // `t · footprint_per_t` is a sample's footprint in cells at distance `t`.
+    let lod = (light.texture_lod && raster.is_none() && !empty)
+        .then(|| {
+            ctl.checkpoint()?;
+            let footprint_per_t = 2.0 * camera.tan_half_fov() / h as f64 / accel.cell;
+            Ok::<_, Canceled>(ShadeLod::new(
+                sc.heights,
+                sun_map.as_deref(),
+                sc.width,
+                sc.height,
+                sc.dx,
+                sc.dy,
+                footprint_per_t,
+                far,
+            ))
+        })
+        .transpose()?
+        .flatten();
     Ok(PreparedView {
         camera: *camera,
         light: *light,
@@ -206,6 +228,7 @@ pub fn prepare_view(
         ao,
         ao_ms,
         raster,
+        lod,
         image: vec![0u8; w * h * 4],
     })
 }
@@ -242,6 +265,9 @@ pub fn render_prepared(
     }
     let light = &view.light;
     let gen = view.camera.ray_gen(out_w, out_h);
+    let lod = view
+        .lod
+        .map(|l| l.with_albedo(sc.heights, sc.albedo, sc.width, sc.height));
     let (near, far) = (view.near, view.far);
     let shader = Shader {
         accel,
@@ -255,6 +281,7 @@ pub fn render_prepared(
         holes: view.holes,
         ao: view.ao.as_ref(),
         amb_tint: light.ambient_tint(),
+        lod: lod.as_ref(),
     };
     if let Some(geo) = &view.raster {
         return render_raster(&shader, geo, gen, view.image, rows, ctl, progress_span);

@@ -84,6 +84,15 @@
 //! `samples` rays per every pixel (3–4× slower for the same edges). Output is sRGB with straight
 //! alpha.
 //!
+//! **Texture level of detail** ([`Lighting::texture_lod`], the `winter` default; `lod.rs`).
+//! Where a pixel spans two or more cells (big DEMs drawn small), the ray still finds its exact
+//! hit on the full grid, but the hit is shaded from box-averaged albedo, heights (normal) and
+//! sun visibility at the pyramid level that matches the pixel's footprint — mipmapping — and
+//! [`Px::differs`]' "adjacent cells" exception widens to that level's cell. Measured on the
+//! mirrored Tanzawa 4096² at 1920×1080 (`winter`): 490 k pixels refined instead of about 1.3 M,
+//! and the render's rays roughly halved, with the snow pattern filtered instead of aliased.
+//! Below two cells per pixel the level is 0 and the bytes are those of the point sample.
+//!
 //! **Parallelism.** Rayon over bands of 4 image rows; every pixel is computed independently, so the
 //! bytes do not depend on the thread count. No allocation per pixel; `checkpoint` per band.
 //!
@@ -98,6 +107,7 @@
 mod accel;
 mod ao;
 mod draw;
+mod lod;
 mod raster_path;
 mod scene;
 mod shade;

@@ -83,6 +83,11 @@ pub struct Lighting {
     /// cool blue, as on a clear day) and the haze fades toward `sky_horizon` (in-scattered sky
     /// light; aerial perspective). Default: 0.
     pub sky_tint: f32,
+    /// Shade samples whose pixel spans several grid cells from box-averaged albedo, heights and
+    /// sun visibility at the footprint's scale (mipmapping; see "Texture level of detail" in
+    /// [`super`] and `lod.rs`), on the ray-casting path. Off: one point sample of the full
+    /// grid per ray (the paper's look). Default: false.
+    pub texture_lod: bool,
 }
 
 impl Default for Lighting {
@@ -99,6 +104,7 @@ impl Default for Lighting {
             shadows: true,
             ambient_occlusion: 0.0,
             sky_tint: 0.0,
+            texture_lod: false,
         }
     }
 }

@@ -3,6 +3,7 @@
 
 use super::accel::TerrainAccel;
 use super::ao::AoMap;
+use super::lod::ShadeLod;
 use super::scene::{Hit, Lighting};
 use crate::geom::vec::DVec3;
 use crate::render::adaptive::{Sample, Shaded};
@@ -28,13 +29,24 @@ pub(super) struct Shader<'s, 'a> {
     pub(super) ao: Option<&'s AoMap>,
     /// [`Lighting::ambient_tint`].
     pub(super) amb_tint: [f32; 3],
+    /// The shading pyramid when [`Lighting::texture_lod`] is on (ray caster only).
+    pub(super) lod: Option<&'s ShadeLod>,
 }
 
 impl Shader<'_, '_> {
     #[inline]
     pub(super) fn shade(&self, dir: [f64; 3], y_frac: f32) -> Px {
         match self.accel.intersect(self.eye, dir, 0.0, f64::INFINITY) {
-            Some(hit) => Px::hit(self.shade_hit(&hit), &hit),
+            Some(hit) => {
+                let level = self.lod.map_or(0, |l| l.level(hit.t));
+                if level == 0 {
+                    Px::hit(self.shade_hit(&hit), &hit)
+                } else {
+                    let mut px = Px::hit(self.shade_filtered(&hit, level), &hit);
+                    px.lod = level as u8;
+                    px
+                }
+            }
             None => Px::background(self.miss(dir, y_frac)),
         }
     }
@@ -74,6 +86,42 @@ impl Shader<'_, '_> {
                     direct *= acc.hit_bilinear_u8(&hit, map);
                 } else if l.shadows && !acc.sunlit(acc.hit_position(&hit), self.sun, self.eps) {
                     direct = 0.0;
+                }
+            }
+            let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
+            if let Some(ao) = self.ao {
+                let w = l.ambient_occlusion;
+                amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
+            }
+            light = Some((direct, amb));
+        }
+        self.finish_sample(albedo, light, hit.t)
+    }
+
+    /// [`Self::shade_hit`] from the shading pyramid's level `level` ≥ 1 (`lod.rs`): the filtered
+    /// albedo, normal and sun visibility at the hit's grid position; the per-hit shadow ray when
+    /// there is no sun map; the sky-view factor as at level 0 (already a smooth field).
+    pub(super) fn shade_filtered(&self, hit: &Hit, level: usize) -> Sample {
+        let Some(lod) = self.lod else {
+            return self.shade_hit(hit);
+        };
+        let acc = self.accel;
+        let l = self.light;
+        let (albedo, n, sun_vis) =
+            lod.shade_inputs(level, hit.col as f64 + hit.fx, hit.row as f64 + hit.fz);
+        let mut light = None;
+        if l.shading {
+            let ndl = DVec3::from(n).dot(DVec3::from(self.sun));
+            let mut direct = 0.0f32;
+            if ndl > 0.0 && self.sun[1] > -1.0 {
+                direct = ndl as f32;
+                match sun_vis {
+                    Some(v) if self.sun_map.is_some() => direct *= v,
+                    _ => {
+                        if l.shadows && !acc.sunlit(acc.hit_position(hit), self.sun, self.eps) {
+                            direct = 0.0;
+                        }
+                    }
                 }
             }
             let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
@@ -150,6 +198,8 @@ pub(super) struct Px {
     pub(super) s: Sample,
     pub(super) col: u32,
     pub(super) row: u32,
+    /// The shading pyramid level it was shaded at (0 = full resolution).
+    pub(super) lod: u8,
 }
 
 impl Px {
@@ -159,6 +209,7 @@ impl Px {
             s,
             col: hit.col as u32,
             row: hit.row as u32,
+            lod: 0,
         }
     }
 
@@ -168,6 +219,7 @@ impl Px {
             s,
             col: u32::MAX,
             row: u32::MAX,
+            lod: 0,
         }
     }
 }
@@ -199,7 +251,10 @@ impl Shaded for Px {
             if (p.t - q.t).abs() > 0.03 * p.t.min(q.t) {
                 return true;
             }
-            if self.col.abs_diff(o.col) <= 1 && self.row.abs_diff(o.row) <= 1 {
+            // Within one cell of the coarser filtered level the two shadings share (level 0:
+            // the same or adjacent cells), the colour step is the filtered field's gradient.
+            let reach = 1u32 << self.lod.min(o.lod);
+            if self.col.abs_diff(o.col) <= reach && self.row.abs_diff(o.row) <= reach {
                 return false;
             }
         }
