@@ -72,29 +72,11 @@ impl Shader<'_, '_> {
     #[inline]
     pub(super) fn shade_hit(&self, hit: &Hit) -> Sample {
         let acc = self.accel;
-        let l = self.light;
-        let hit = *hit;
-        let albedo = acc.hit_albedo(&hit);
-        let mut light = None;
-        if l.shading {
-            let n = acc.hit_normal(&hit);
-            let ndl = DVec3::from(n).dot(DVec3::from(self.sun));
-            let mut direct = 0.0f32;
-            if ndl > 0.0 && self.sun[1] > -1.0 {
-                direct = ndl as f32;
-                if let Some(map) = self.sun_map {
-                    direct *= acc.hit_bilinear_u8(&hit, map);
-                } else if l.shadows && !acc.sunlit(acc.hit_position(&hit), self.sun, self.eps) {
-                    direct = 0.0;
-                }
-            }
-            let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
-            if let Some(ao) = self.ao {
-                let w = l.ambient_occlusion;
-                amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
-            }
-            light = Some((direct, amb));
-        }
+        let albedo = acc.hit_albedo(hit);
+        let light = self.light.shading.then(|| {
+            let vis = || self.sun_map.map(|m| acc.hit_bilinear_u8(hit, m));
+            self.direct_and_ambient(hit, acc.hit_normal(hit), vis)
+        });
         self.finish_sample(albedo, light, hit.t)
     }
 
@@ -105,33 +87,45 @@ impl Shader<'_, '_> {
         let Some(lod) = self.lod else {
             return self.shade_hit(hit);
         };
-        let acc = self.accel;
-        let l = self.light;
         let (albedo, n, sun_vis) =
             lod.shade_inputs(level, hit.col as f64 + hit.fx, hit.row as f64 + hit.fz);
-        let mut light = None;
-        if l.shading {
-            let ndl = DVec3::from(n).dot(DVec3::from(self.sun));
-            let mut direct = 0.0f32;
-            if ndl > 0.0 && self.sun[1] > -1.0 {
-                direct = ndl as f32;
-                match sun_vis {
-                    Some(v) if self.sun_map.is_some() => direct *= v,
-                    _ => {
-                        if l.shadows && !acc.sunlit(acc.hit_position(hit), self.sun, self.eps) {
-                            direct = 0.0;
-                        }
+        let light = self.light.shading.then(|| {
+            let vis = || sun_vis.filter(|_| self.sun_map.is_some());
+            self.direct_and_ambient(hit, n, vis)
+        });
+        self.finish_sample(albedo, light, hit.t)
+    }
+
+    /// The sun's Lambert term (× the sun map's visibility `map_vis()` when there is a map, else
+    /// a shadow ray when shadows are on) and the sky light (× the sky-view factor) at `hit`
+    /// with unit normal `n`.
+    #[inline]
+    fn direct_and_ambient(
+        &self,
+        hit: &Hit,
+        n: [f64; 3],
+        map_vis: impl FnOnce() -> Option<f32>,
+    ) -> (f32, f32) {
+        let (acc, l) = (self.accel, self.light);
+        let ndl = DVec3::from(n).dot(DVec3::from(self.sun));
+        let mut direct = 0.0f32;
+        if ndl > 0.0 && self.sun[1] > -1.0 {
+            direct = ndl as f32;
+            match map_vis() {
+                Some(v) => direct *= v,
+                None => {
+                    if l.shadows && !acc.sunlit(acc.hit_position(hit), self.sun, self.eps) {
+                        direct = 0.0;
                     }
                 }
             }
-            let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
-            if let Some(ao) = self.ao {
-                let w = l.ambient_occlusion;
-                amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
-            }
-            light = Some((direct, amb));
         }
-        self.finish_sample(albedo, light, hit.t)
+        let mut amb = l.ambient * (0.5 + 0.5 * n[1] as f32);
+        if let Some(ao) = self.ao {
+            let w = l.ambient_occlusion;
+            amb *= 1.0 - w + w * ao.at(hit.col, hit.row, hit.fx as f32, hit.fz as f32);
+        }
+        (direct, amb)
     }
 
     /// The tail every terrain shading path shares: `albedo` lit by the sun (`direct`: cos × sun
