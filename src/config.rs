@@ -89,8 +89,8 @@ pub struct ServeArgs {
     /// Seconds between retention sweeps. Default 300.
     #[arg(long, env = "PHENOMENA_SWEEP_INTERVAL_SECS")]
     pub sweep_interval_secs: Option<u64>,
-    /// Most times a job is started before it is given up as poisoned (its worker died in every
-    /// attempt: a crash, an OOM kill). Default 3: one crash of an unlucky moment and one retry
+    /// Most times a job is started before it is given up as poisoned (no attempt reached an end:
+    /// the pipeline panicked, or its worker died — a crash, an OOM kill). Default 3: one crash of an unlucky moment and one retry
     /// after it are forgiven; a job that takes its worker down three times would keep doing so.
     #[arg(long, env = "PHENOMENA_MAX_ATTEMPTS")]
     pub max_attempts: Option<u32>,

@@ -41,7 +41,7 @@ pub enum Problem {
     Storage,
     /// A job ran longer than the time limit.
     TimeLimit,
-    /// A job whose worker died in every attempt.
+    /// A job none of whose `max_attempts` attempts reached an end (a panic, a dead worker).
     Poisoned,
     /// A job canceled (a cloud scene version whose edit job was canceled).
     Canceled,

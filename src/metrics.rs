@@ -13,9 +13,11 @@ pub struct Metrics {
     pub http_duration: HistogramVec,
     pub job_duration: HistogramVec,
     pub jobs_finished: IntCounterVec,
-    /// Jobs given up after `max_attempts` starts whose worker died each time (also counted in
-    /// `jobs_finished_total{status="failed"}`).
+    /// Jobs given up after `max_attempts` starts none of which reached an end (the pipeline
+    /// panicked or the worker died each time; also counted in `jobs_finished_total{status="failed"}`).
     pub jobs_poisoned: IntCounterVec,
+    /// Attempts that ended in a pipeline panic in this replica (the job went back to the queue).
+    pub jobs_failed_attempts: IntCounterVec,
     pub queue_depth: IntGauge,
     pub jobs_running: IntGauge,
     pub store_bytes: IntGauge,
@@ -67,7 +69,14 @@ impl Metrics {
             jobs_poisoned: IntCounterVec::new(
                 Opts::new(
                     "jobs_poisoned_total",
-                    "Jobs failed as poisoned: started max_attempts times, the worker died in each",
+                    "Jobs failed as poisoned: started max_attempts times, no attempt reached an end (a panic or a dead worker)",
+                ),
+                &["pipeline"],
+            )?,
+            jobs_failed_attempts: IntCounterVec::new(
+                Opts::new(
+                    "job_attempts_failed_total",
+                    "Attempts whose pipeline panicked in this replica; the job went back to the queue",
                 ),
                 &["pipeline"],
             )?,
@@ -96,6 +105,8 @@ impl Metrics {
         m.registry.register(Box::new(m.job_duration.clone()))?;
         m.registry.register(Box::new(m.jobs_finished.clone()))?;
         m.registry.register(Box::new(m.jobs_poisoned.clone()))?;
+        m.registry
+            .register(Box::new(m.jobs_failed_attempts.clone()))?;
         m.registry.register(Box::new(m.queue_depth.clone()))?;
         m.registry.register(Box::new(m.jobs_running.clone()))?;
         m.registry.register(Box::new(m.store_bytes.clone()))?;

@@ -74,10 +74,10 @@ function numberInput(prop, id, value, label) {
 /** A value is invalid when it holds a NaN anywhere. */
 const invalid = (v) => (typeof v === "number" ? Number.isNaN(v) : Array.isArray(v) ? v.some(invalid) : v && typeof v === "object" ? Object.values(v).some(invalid) : false);
 
-/** A row of fixed-length number inputs. */
+/** A row of fixed-length number inputs; each cell's bounds from `prefixItems` (a tuple) or `items`. */
 function tuple(prop, id, label, def, columns) {
   const n = prop.minItems;
-  const cells = Array.from({ length: n }, (_, k) => numberInput(prop.items, `${id}-${k}`, def ? def[k] : undefined, `${label} ${columns[k] || k + 1}`));
+  const cells = Array.from({ length: n }, (_, k) => numberInput((prop.prefixItems && prop.prefixItems[k]) || prop.items, `${id}-${k}`, def ? def[k] : undefined, `${label} ${columns[k] || k + 1}`));
   const node = el("div", { class: "tuple", style: `--n:${n}`, role: "group", "aria-label": label },
     cells.map((c, k) => el("span", {}, el("small", { "aria-hidden": "true" }, columns[k] || String(k + 1)), c.input)));
   return {

@@ -67,7 +67,10 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("get", "/v1/clouds/{id}"),
     ("delete", "/v1/clouds/{id}"),
     ("post", "/v1/clouds/{id}/renders"),
-    ("post", "/v1/clouds/{id}/edits/{kind}"),
+    ("post", "/v1/clouds/{id}/edits/sun-color"),
+    ("post", "/v1/clouds/{id}/edits/ambient"),
+    ("post", "/v1/clouds/{id}/edits/sun-direction"),
+    ("post", "/v1/clouds/{id}/edits/set"),
     ("get", "/v1/assets/{id}"),
     ("get", "/v1/jobs"),
     ("get", "/v1/jobs/{id}"),
@@ -106,7 +109,16 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/clouds", post(scenes::create))
         .route("/v1/clouds/{id}", get(scenes::get).delete(scenes::delete))
         .route("/v1/clouds/{id}/renders", post(scenes::render))
-        .route("/v1/clouds/{id}/edits/{kind}", post(scenes::edit))
+        .route(
+            "/v1/clouds/{id}/edits/sun-color",
+            post(scenes::edit_sun_color),
+        )
+        .route("/v1/clouds/{id}/edits/ambient", post(scenes::edit_ambient))
+        .route(
+            "/v1/clouds/{id}/edits/sun-direction",
+            post(scenes::edit_sun_direction),
+        )
+        .route("/v1/clouds/{id}/edits/set", post(scenes::edit_set))
         .route("/v1/jobs", get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
         .route("/v1/jobs/{id}/events", get(jobs::events))

@@ -33,14 +33,12 @@ const EDIT: &str = "cloud-edit";
 const VIEW_KEYS: &[&str] = &["width", "height", "camera", "layers", "seed"];
 /// Parameters that tell the decoder how to read the volume, fixed at upload.
 const INPUT_KEYS: &[&str] = &["bounds", "dims"];
-/// The edit modes (SPEC §3.1–3.3), as they appear in the route.
-/// `set` gives κ, the sun direction, the sun colour, the scattering mode or the albedo directly.
-const EDIT_KINDS: &[&str] = &["sun-color", "ambient", "sun-direction", "set"];
 /// The render layer a scene render always adds, and its output: the linear layers a later
 /// sun-colour edit at that view reads (`phenomena_engine::cloud::layers`).
 const LINEAR: &str = "linear";
 const LAYERS_BIN: &str = phenomena_engine::registry::LAYERS;
-/// How long an edit on a still-pending base version waits for it before answering 409.
+/// How long an edit on a still-pending base version waits for it before answering 409 (at most
+/// the server's `max_wait_secs`).
 const BASE_WAIT: Duration = Duration::from_secs(30);
 
 /// A version as the API shows it.
@@ -231,7 +229,7 @@ fn take_version(body: &mut Map<String, Value>, field: &str) -> Result<Option<u32
 }
 
 /// The version to use: `n`, or the newest one that has not failed; a pending version is waited
-/// for (up to [`BASE_WAIT`]) and a failed one refused.
+/// for (up to [`BASE_WAIT`], at most `max_wait_secs`) and a failed one refused.
 async fn ready_version(
     st: &AppState,
     id: &str,
@@ -255,7 +253,8 @@ async fn ready_version(
     let mut scene = scene;
     if v.status == VersionStatus::Pending {
         if let Some(job) = &v.job {
-            st.jobs.wait(job, BASE_WAIT).await;
+            let wait = BASE_WAIT.min(Duration::from_secs(st.cfg.max_wait_secs));
+            st.jobs.wait(job, wait).await;
         }
         scene = settled(st, id).await?;
         v = pick(&scene).unwrap_or(v);
@@ -521,21 +520,57 @@ fn edit_field(e: ParamError) -> ApiError {
     ApiError::InvalidParameter(ParamError::new(field, e.detail))
 }
 
-/// `POST /v1/clouds/{id}/edits/{kind}`: applies an edit to `base_version` (default: the newest
-/// version that has not failed) as a `cloud-edit` job; answers 202 with the new, pending version (200 when
-/// `Prefer: wait` saw it settle).
-pub async fn edit(
+/// `POST /v1/clouds/{id}/edits/sun-color`: see [`edit`].
+pub async fn edit_sun_color(
     State(st): State<AppState>,
-    ApiPath((id, kind)): ApiPath<(String, String)>,
+    ApiPath(id): ApiPath<String>,
     headers: HeaderMap,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let Some(kind) = EDIT_KINDS.iter().copied().find(|k| *k == kind) else {
-        return Err(ApiError::NotFound(format!(
-            "no edit mode {kind:?}; the modes are {}",
-            EDIT_KINDS.join(", ")
-        )));
-    };
+    edit(st, id, "sun-color", headers, req).await
+}
+
+/// `POST /v1/clouds/{id}/edits/ambient`: see [`edit`].
+pub async fn edit_ambient(
+    State(st): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    headers: HeaderMap,
+    req: Request,
+) -> Result<Response, ApiError> {
+    edit(st, id, "ambient", headers, req).await
+}
+
+/// `POST /v1/clouds/{id}/edits/sun-direction`: see [`edit`].
+pub async fn edit_sun_direction(
+    State(st): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    headers: HeaderMap,
+    req: Request,
+) -> Result<Response, ApiError> {
+    edit(st, id, "sun-direction", headers, req).await
+}
+
+/// `POST /v1/clouds/{id}/edits/set`: see [`edit`].
+pub async fn edit_set(
+    State(st): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    headers: HeaderMap,
+    req: Request,
+) -> Result<Response, ApiError> {
+    edit(st, id, "set", headers, req).await
+}
+
+/// `POST /v1/clouds/{id}/edits/{kind}` (one route per edit mode, each with its own body schema
+/// in `openapi.yaml`; any other mode is the router's 404): applies an edit to `base_version` (default: the newest
+/// version that has not failed) as a `cloud-edit` job; answers 202 with the new, pending version (200 when
+/// `Prefer: wait` saw it settle).
+async fn edit(
+    st: AppState,
+    id: String,
+    kind: &'static str,
+    headers: HeaderMap,
+    req: Request,
+) -> Result<Response, ApiError> {
     if !st.jobs.accepting() {
         return Err(ApiError::Unavailable("the service is shutting down".into()));
     }

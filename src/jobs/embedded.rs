@@ -371,7 +371,8 @@ impl Embedded {
     }
 
     /// Takes the next queued job and marks it running (persisted). A job already started
-    /// `max_attempts` times (its worker died each time) is failed as poisoned instead.
+    /// `max_attempts` times (it panicked or its worker died each time) is failed as poisoned
+    /// instead.
     fn take_next(&self) -> Result<Option<Next>, StoreError> {
         let mut st = self.state();
         while let Some(id) = st.queue.pop_front() {
@@ -397,7 +398,7 @@ impl Embedded {
                     .jobs_poisoned
                     .with_label_values(&[rec.pipeline.as_str()])
                     .inc();
-                tracing::error!(job = %rec.id, attempts = rec.attempts, "job poisoned: its worker died in every attempt; not retried");
+                tracing::error!(job = %rec.id, attempts = rec.attempts, "job poisoned: no attempt reached an end (panics or a dead worker); not retried");
                 drop(st);
                 if let Err(e) = self.store().put_json(&self.job_path(&rec.id), &rec) {
                     tracing::warn!(job = %rec.id, error = %e, "could not record the poisoned job");
@@ -436,7 +437,8 @@ impl Embedded {
     }
 
     /// Records the end of a run: `rec` carries the final status, outputs, timings or error.
-    /// A job interrupted by shutdown is stored as queued again.
+    /// A job interrupted by shutdown is stored as queued again; one whose attempt failed (a
+    /// panic) is also queued again, at the back of the queue.
     async fn finish(&self, mut rec: JobRecord) -> Result<(), StoreError> {
         if rec.status.is_terminal() {
             rec.finished_at = Some(Utc::now());
@@ -472,8 +474,22 @@ impl Embedded {
         if let Some(rec) = &terminal {
             self.inner.hooks.finished(rec).await;
         }
-        if let Some(entry) = self.state().jobs.get(&id) {
-            entry.live.tx.send_replace(entry.record.snapshot());
+        let retry = {
+            let mut st = self.state();
+            let retry = st.jobs.get(&id).is_some_and(|entry| {
+                entry.live.tx.send_replace(entry.record.snapshot());
+                entry.record.status == Status::Queued
+            }) && self.inner.accepting.load(Ordering::Acquire);
+            // A failed attempt (a panic) goes to the back of the queue; a run a shutdown cut
+            // short stays queued on disk for the next start.
+            if retry {
+                st.queue.push_back(id.clone());
+                self.metrics().queue_depth.set(st.queue.len() as i64);
+            }
+            retry
+        };
+        if retry {
+            self.inner.work.notify_one();
         }
         self.inner.idle.notify_waiters();
         persisted

@@ -1,7 +1,9 @@
 //! Running one job, the same for every backend: read its input from the store, run the pipeline
 //! on the rayon pool (never on the async runtime), wait for it with the job's time limit, store the
 //! outputs as content-addressed blobs (so a job run twice after a crash writes the same blobs) and
-//! return the final record. A panic inside a pipeline fails only that job.
+//! return the final record. A panic inside a pipeline fails only that attempt: the job goes back
+//! to the queue (a failed attempt, as if its worker had died) until it has been started
+//! `max_attempts` times, then the backend ends it `failed` as poisoned.
 
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
@@ -79,10 +81,10 @@ impl Control for JobControl {
     }
 }
 
-/// Ends a job that was started `max_attempts` times and never reached an end (its worker
-/// process died in every attempt: a crash, an out-of-memory kill): `failed` with the `poisoned`
-/// problem type, and never run again. Both backends call it when they are about to start such a
-/// job once more. Sets `finished_at`.
+/// Ends a job that was started `max_attempts` times and never reached an end (its pipeline
+/// panicked, or its worker process died — a crash, an out-of-memory kill — in every attempt):
+/// `failed` with the `poisoned` problem type, and never run again. Both backends call it when
+/// they are about to start such a job once more. Sets `finished_at`.
 pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
     rec.status = Status::Failed;
     rec.progress = 0.0;
@@ -91,16 +93,33 @@ pub(crate) fn poison(rec: &mut JobRecord, max_attempts: u32) {
     rec.error = Some(JobError::new(
         Problem::Poisoned,
         format!(
-            "the job was started {} times and its worker stopped before the end of each attempt \
-             (a crash or an out-of-memory kill); it is not retried again (max_attempts = {max_attempts})",
+            "the job was started {} times and no attempt reached an end (the pipeline failed \
+             unexpectedly, or its worker stopped: a crash or an out-of-memory kill); it is not \
+             retried again (max_attempts = {max_attempts})",
             rec.failed_attempts()
         ),
     ));
 }
 
+/// An attempt that ended in a panic (or whose pipeline task vanished): not a result, so the job
+/// goes back to the queue like one whose worker died. The attempt counts towards `max_attempts`
+/// (it is not an interruption), so the backend poisons the job instead of starting it again once
+/// it has been started that many times ([`poison`]).
+fn failed_attempt(rec: &mut JobRecord, metrics: &Metrics) {
+    rec.status = Status::Queued;
+    rec.progress = 0.0;
+    rec.stage = None;
+    rec.outputs.clear();
+    rec.error = None;
+    metrics
+        .jobs_failed_attempts
+        .with_label_values(&[rec.pipeline.as_str()])
+        .inc();
+}
+
 /// Reserves the job's estimated peak memory ([`super::InputRef::memory`]) from the process's
-/// budget, waiting while other jobs and input checks hold it (a job larger than the budget was
-/// refused at submission; an older record's larger estimate takes the whole budget). `None`
+/// budget, waiting while other jobs and input checks hold it (a job larger than the whole budget
+/// was refused at submission, or by [`execute`] on a worker with a smaller budget). `None`
 /// when the job is canceled, or the process shuts down, while it waits.
 async fn reserve_memory(ex: &Executor, rec: &JobRecord, live: &Live) -> Option<Reservation> {
     let bytes = rec.input.memory;
@@ -157,6 +176,25 @@ fn end_canceled(rec: &mut JobRecord, live: &Live, timeout: Duration) {
 pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) -> JobRecord {
     let t0 = Instant::now();
     tracing::info!(job = %rec.id, pipeline = %rec.pipeline, attempt = rec.attempts, "job started");
+    // A job whose estimated peak is more than this worker's whole budget (a Redis worker
+    // configured with a smaller budget than the API replica that admitted it) is refused rather
+    // than run on the whole budget and beyond.
+    let total = ex.memory.total_bytes();
+    if rec.input.memory > total {
+        tracing::warn!(job = %rec.id, mib = rec.input.memory >> 20, budget_mib = total >> 20, "job larger than this worker's memory budget; refused");
+        rec.status = Status::Failed;
+        rec.error = Some(JobError::new(
+            Problem::TooLarge,
+            format!(
+                "the job needs an estimated {} MiB of memory, more than this worker's whole \
+                 memory budget of {} MiB (--memory-budget-bytes); run it on workers with a larger \
+                 budget, or make it smaller (a smaller input or output)",
+                rec.input.memory.div_ceil(1 << 20),
+                total >> 20
+            ),
+        ));
+        return rec;
+    }
     // The run's estimated peak memory, reserved from the process's budget (shared with the
     // API's input checks) before the input is read; held until the outputs are stored.
     let _memory = match reserve_memory(ex, &rec, &live).await {
@@ -297,20 +335,12 @@ pub(crate) async fn execute(ex: &Executor, mut rec: JobRecord, live: Arc<Live>) 
                 .map(|s| s.to_string())
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_default();
-            tracing::error!(job = %rec.id, panic = %msg, "pipeline panicked");
-            rec.status = Status::Failed;
-            rec.error = Some(JobError::new(
-                Problem::Internal,
-                "the pipeline failed unexpectedly",
-            ));
+            tracing::error!(job = %rec.id, attempt = rec.attempts, panic = %msg, "pipeline panicked; the attempt failed and the job goes back to the queue");
+            failed_attempt(&mut rec, metrics);
         }
         Err(_) => {
-            tracing::error!(job = %rec.id, "pipeline task vanished");
-            rec.status = Status::Failed;
-            rec.error = Some(JobError::new(
-                Problem::Internal,
-                "the pipeline failed unexpectedly",
-            ));
+            tracing::error!(job = %rec.id, attempt = rec.attempts, "pipeline task vanished; the attempt failed and the job goes back to the queue");
+            failed_attempt(&mut rec, metrics);
         }
     }
     rec

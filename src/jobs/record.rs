@@ -150,7 +150,8 @@ fn is_zero(n: &u32) -> bool {
 }
 
 impl JobRecord {
-    /// Starts that ended neither in a result nor in a graceful re-queue: the worker died.
+    /// Starts that ended neither in a result nor in a graceful re-queue: the pipeline panicked or
+    /// the worker died.
     pub fn failed_attempts(&self) -> u32 {
         self.attempts.saturating_sub(self.interrupted)
     }

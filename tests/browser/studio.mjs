@@ -434,6 +434,9 @@ try {
   await sc.locator(".field[data-name=snowfall] button", { hasText: "+ row" }).click();
   await sc.locator("#p-snow-cover-snowfall-alt1-r1-0").fill("6");
   await sc.locator("#p-snow-cover-snowfall-alt1-r1-1").fill("0.01");
+  // Each column has its own bounds (the schema's `prefixItems`: hour 0–1000, rate 0–10 m/h).
+  assert.equal(await sc.locator("#p-snow-cover-snowfall-alt1-r1-0").getAttribute("max"), "1000", "the hour cell's bound");
+  assert.equal(await sc.locator("#p-snow-cover-snowfall-alt1-r1-1").getAttribute("max"), "10", "the rate cell's bound");
   await sc.locator("#p-snow-cover-wind-on").check();
   await sc.locator("#p-snow-cover-wind-azimuth_deg").fill("90");
   await sc.locator("#p-snow-cover-wind-tilt_deg").fill("20");

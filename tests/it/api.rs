@@ -527,30 +527,71 @@ async fn bad_requests_get_problem_json() {
     assert_eq!(problem(resp, 400, "bad-request").await["field"], "limit");
 }
 
+/// Poison jobs (issue 20): a job whose pipeline panics in every attempt goes back to the queue
+/// after each panic (a failed attempt, as if its worker had died), is started `max_attempts`
+/// times, then ends `failed` as `poisoned` (on Redis its id goes on the dead-letter list); the
+/// worker that caught the panics keeps serving other jobs meanwhile and afterwards.
 #[tokio::test]
-async fn a_panicking_pipeline_fails_only_its_job() {
-    let s = start(|c| c.concurrency = 1).await;
+async fn a_job_that_panics_in_every_attempt_ends_poisoned_and_others_run() {
+    let s = start(|c| {
+        c.concurrency = 1;
+        c.max_attempts = 2;
+    })
+    .await;
     let bad: Value = s
         .sleepy(json!({"panic": true}), b"p")
         .await
         .json()
         .await
         .unwrap();
+    // Queued behind the panicking job's first attempt: it runs between the attempts.
     let good: Value = s.sleepy(json!({"ms": 5}), b"g").await.json().await.unwrap();
     let bad = s.wait_done(&id_of(&bad)).await;
-    assert_eq!(bad["status"], "failed");
+    assert_eq!(bad["status"], "failed", "{bad}");
     assert_eq!(
         bad["error"]["type"],
-        "https://phenomena.dev/problems/internal"
+        "https://phenomena.dev/problems/poisoned",
+        "{bad}"
+    );
+    assert_eq!(bad["attempts"], json!(2), "started max_attempts times: {bad}");
+    let detail = bad["error"]["detail"].as_str().unwrap();
+    assert!(detail.contains("max_attempts = 2"), "{detail}");
+    assert!(!detail.contains("asked to panic"), "no internals leak: {detail}");
+    let good = s.wait_done(&id_of(&good)).await;
+    assert_eq!(good["status"], "succeeded", "{good}");
+    assert_eq!(good["attempts"], json!(1), "{good}");
+
+    let metrics = s
+        .client
+        .get(s.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        metrics.contains("phenomena_jobs_poisoned_total{pipeline=\"sleepy\"} 1"),
+        "{metrics}"
     );
     assert!(
-        !bad["error"]["detail"]
-            .as_str()
-            .unwrap()
-            .contains("asked to panic"),
-        "no internals leak"
+        metrics.contains("phenomena_job_attempts_failed_total{pipeline=\"sleepy\"} 2"),
+        "{metrics}"
     );
-    assert_eq!(s.wait_done(&id_of(&good)).await["status"], "succeeded");
+    if s.backend == crate::common::Backend::Redis {
+        assert_eq!(s.dead_letters(), vec![id_of(&bad)], "on the dead-letter list");
+    }
+
+    // The worker still runs work after the poisoned job: the same request is a new job.
+    let again: Value = s.sleepy(json!({"ms": 5}), b"g2").await.json().await.unwrap();
+    assert_eq!(s.wait_done(&id_of(&again)).await["status"], "succeeded");
+    let resubmitted: Value = s
+        .sleepy(json!({"panic": true}), b"p")
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_ne!(id_of(&resubmitted), id_of(&bad), "a poisoned job is not reused");
 }
 
 #[tokio::test]

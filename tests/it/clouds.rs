@@ -101,7 +101,7 @@ async fn render_of(s: &Server, job: &Value) -> Vec<u8> {
 async fn edit(s: &Server, spec: &Value, scene: &str, kind: &str, body: Value) -> Value {
     let r = post_json(s, &format!("/v1/clouds/{scene}/edits/{kind}"), body).await;
     let status = r.status().as_u16();
-    let v = checked(spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    let v = checked(spec, "post", &format!("/v1/clouds/{{id}}/edits/{kind}"), r).await;
     assert_eq!(status, 200, "{v}");
     v
 }
@@ -364,7 +364,7 @@ async fn bad_edits_and_scenes_are_clear_errors() {
         with_view(json!({"strokes": [{"color": "#zzzzzz", "pixels": [[1, 1]]}]})),
     )
     .await;
-    let p = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    let p = checked(&spec, "post", "/v1/clouds/{id}/edits/sun-color", r).await;
     assert!(p["field"].as_str().unwrap().starts_with("strokes"), "{p}");
 
     // A drag that starts on empty sky: the version fails with the reason.
@@ -374,7 +374,7 @@ async fn bad_edits_and_scenes_are_clear_errors() {
         with_view(json!({"from": [1, 1], "to": [VIEW.0 / 2, VIEW.1 / 2]})),
     )
     .await;
-    let v = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    let v = checked(&spec, "post", "/v1/clouds/{id}/edits/sun-direction", r).await;
     assert_eq!(v["status"], "failed", "{v}");
     assert!(v["error"]["detail"].as_str().unwrap().len() > 10, "{v}");
     // Editing the failed version is a conflict; the default base skips it.
@@ -393,7 +393,7 @@ async fn bad_edits_and_scenes_are_clear_errors() {
         with_view(json!({"strokes": [{"color": "#ffffff", "pixels": block(48, 36)}]})),
     )
     .await;
-    let v = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    let v = checked(&spec, "post", "/v1/clouds/{id}/edits/sun-color", r).await;
     assert_eq!(
         (v["version"].as_u64(), v["parent"].as_u64()),
         (Some(3), Some(1)),
@@ -613,7 +613,7 @@ async fn multiple_scattering_over_http() {
         with_view(json!({"albedo": 2})),
     )
     .await;
-    let p = checked(&spec, "post", "/v1/clouds/{id}/edits/{kind}", r).await;
+    let p = checked(&spec, "post", "/v1/clouds/{id}/edits/set", r).await;
     assert!(p["field"].as_str().unwrap().ends_with("albedo"), "{p}");
 }
 

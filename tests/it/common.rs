@@ -335,6 +335,21 @@ impl Server {
         }
     }
 
+    /// The ids on the Redis backend's dead-letter list (empty on the embedded backend).
+    pub fn dead_letters(&self) -> Vec<String> {
+        let Some(p) = &self.redis else {
+            return Vec::new();
+        };
+        let client = redis::Client::open(redis_url()).unwrap();
+        let mut con = client.get_connection().unwrap();
+        redis::cmd("LRANGE")
+            .arg(format!("{}:dead", p.0))
+            .arg(0)
+            .arg(-1)
+            .query(&mut con)
+            .unwrap()
+    }
+
     pub fn url(&self, path: &str) -> String {
         format!("http://{}{}", self.addr, path)
     }

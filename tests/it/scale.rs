@@ -615,3 +615,67 @@ async fn scale_out_figures() {
         );
     }
 }
+
+/// A worker whose memory budget is smaller than the API replica's (issue 20): a job the API
+/// admitted (its estimate fits the API's budget) but that is larger than the worker's whole
+/// budget ends `failed` as `too-large`, with the estimate and the worker's budget in the detail,
+/// instead of taking the worker's whole budget; the worker goes on running jobs that fit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_refuses_a_job_larger_than_its_whole_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = RedisPrefix::new();
+    let redis = redis_url();
+    let api = Replica::spawn(dir.path(), &redis, &prefix.0, "api", "api-1");
+    // 2 MiB: less than a 256² DEM's job (32 B per cell and per output pixel, ~4.5 MiB).
+    let _worker = Replica::spawn_env(
+        dir.path(),
+        &redis,
+        &prefix.0,
+        "worker",
+        "small-worker",
+        &["--memory-budget-bytes", "2097152"],
+        &[],
+    );
+    let c = reqwest::Client::new();
+    let big = submit(
+        &c,
+        &api,
+        &synthetic_npy_of(256),
+        &json!({"width": 320, "height": 240, "cell_size": 30.0}),
+    )
+    .await;
+    let done = wait_done(
+        &c,
+        &api,
+        big["id"].as_str().unwrap(),
+        Duration::from_secs(60),
+    )
+    .await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(
+        done["error"]["type"], "https://phenomena.dev/problems/too-large",
+        "{done}"
+    );
+    let detail = done["error"]["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("memory budget of 2 MiB"),
+        "the detail names the worker's budget: {detail}"
+    );
+    assert_eq!(done["attempts"], json!(1), "not retried: {done}");
+
+    let small = submit(
+        &c,
+        &api,
+        &synthetic_npy_of(64),
+        &json!({"width": 64, "height": 48, "cell_size": 30.0}),
+    )
+    .await;
+    let done = wait_done(
+        &c,
+        &api,
+        small["id"].as_str().unwrap(),
+        Duration::from_secs(60),
+    )
+    .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+}

@@ -69,6 +69,10 @@ pub(crate) struct SweepOut<'a, E> {
     pub border: usize,
 }
 
+/// Largest lateral shift per slice (in voxels) of the sun sweep on its first choice of axis;
+/// beyond it the sweep slices across the axis where the shift is at most 1 (see [`sweep`]).
+const MAX_SHIFT: f64 = 8.0;
+
 /// The sheared line sweep of the module doc, calling `put(cell, voxel index, T_sun)` for every
 /// voxel — or, when `dense` is given, only for the voxels of slice rows that hold density (the
 /// renderer needs ρ·T_sun, which is 0 elsewhere, and lines crossing only empty rows are not
@@ -84,9 +88,25 @@ pub(crate) fn sweep<E: Send>(
 ) -> Result<(), Canceled> {
     let g = GridFrame::of(volume);
     let s = direction;
-    let k = (0..3)
-        .max_by(|&a, &b| s[a].abs().total_cmp(&s[b].abs()))
-        .unwrap_or(1);
+    // Slices across the axis the sun's direction is most along; on a grid whose voxels are far
+    // from cubic that axis can have a tiny voxel side, and the lateral shift per slice (`da`,
+    // `db` below, in voxels) grows with the ratio of the sides: the line arrays, sized by it,
+    // reached terabytes for `bounds` spanning 1e8 on one axis and 1 on another (found by
+    // Schemathesis, issue 20). Then slice across the axis the sun crosses the most voxels of per
+    // unit length instead, where the shift is at most one voxel per slice.
+    let along =
+        |w: &dyn Fn(usize) -> f64| (0..3).max_by(|&a, &b| w(a).total_cmp(&w(b))).unwrap_or(1);
+    let mut k = along(&|i| s[i].abs());
+    let shift = |k: usize| {
+        (0..3)
+            .filter(|&i| i != k)
+            .map(|i| (s[i] / s[k]).abs() * g.h[k] / g.h[i])
+            .fold(0.0f64, f64::max)
+    };
+    let first = shift(k);
+    if first.is_nan() || first > MAX_SHIFT {
+        k = along(&|i| s[i].abs() / g.h[i]);
+    }
     let (a, b) = match k {
         0 => (1, 2),
         1 => (0, 2),

@@ -12,7 +12,7 @@
 //! P:queue         stream of job ids, consumer group `workers` — the work queue
 //! P:cancel:<id>   a cancel request for a running job
 //! P:dead          list: dead letters, ids of jobs failed as poisoned (started `max_attempts`
-//!                 times, their worker died each time); an id leaves it when its job expires
+//!                 times, none reached an end: a panic or a dead worker); an id leaves it when its job expires
 //! P:progress, P:cancel, P:work   pub/sub channels (progress snapshots, cancel requests, new work)
 //! ```
 //!

@@ -73,7 +73,7 @@ return 1
     )
 });
 
-/// A job started `max_attempts` times whose worker died in each attempt ends failed (poisoned)
+/// A job started `max_attempts` times none of whose attempts reached an end (a panic, a dead worker) ends failed (poisoned)
 /// instead of starting again, and its id goes on the dead-letter list `P:dead`. ARGV: prefix, id,
 /// old record, new record, stream entry, request key, finished (ms). Returns 1, or 0 when the
 /// record changed meanwhile.

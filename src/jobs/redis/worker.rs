@@ -144,7 +144,7 @@ impl RedisJobs {
                 if ok != 1 {
                     continue;
                 }
-                tracing::error!(job = %c.job, attempts = dead.attempts, "job poisoned: its worker died in every attempt; moved to the dead-letter list");
+                tracing::error!(job = %c.job, attempts = dead.attempts, "job poisoned: no attempt reached an end (panics or a dead worker); moved to the dead-letter list");
                 let m = &self.inner.exec.metrics;
                 m.jobs_finished
                     .with_label_values(&[dead.pipeline.as_str(), dead.status.as_str()])
@@ -264,7 +264,7 @@ impl RedisJobs {
     }
 
     /// Stores the run's result: terminal (then hooks, then the announcement) or back to the queue
-    /// after a shutdown interrupted it.
+    /// after a shutdown interrupted it or its attempt failed (a panic).
     async fn record_end(
         &self,
         raw: &str,

@@ -327,6 +327,14 @@ impl Edit {
                 }))
             }
             "set" => {
+                // `kappa: null` reads as "absent" to serde; the schema (and the edit's intent: a
+                // value to set) says a number, so an explicit null is refused by name.
+                if v.get("kappa").is_some_and(serde_json::Value::is_null) {
+                    return Err(crate::ParamError::new(
+                        "kappa",
+                        "must be a number from 0 to 10000 (null is not a value to set)",
+                    ));
+                }
                 let w: WireSet = crate::params::deserialize_params(v)?;
                 let view = View::from_wire(w.width, w.height, w.camera, limits)?;
                 let kappa = match w.kappa {
