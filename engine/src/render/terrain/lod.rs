@@ -89,8 +89,8 @@ fn halve<const N: usize, T: Send + Copy + Default>(
             let mut add = |ok: bool, k: usize| {
                 if ok {
                     let v = get(k);
-                    for ch in 0..N {
-                        acc[ch] += v[ch];
+                    for (a, x) in acc.iter_mut().zip(v) {
+                        *a += x;
                     }
                     n += 1;
                 }
@@ -125,7 +125,9 @@ impl ShadeLod {
         footprint_per_t: f64,
         max_t: f64,
     ) -> Option<Self> {
-        if !(max_t * footprint_per_t >= 2.0) || width < 8 || height < 8 {
+        // (NaN reach counts as too small.)
+        let reach = max_t * footprint_per_t;
+        if reach.is_nan() || reach < 2.0 || width < 8 || height < 8 {
             return None;
         }
         let top = ((max_t * footprint_per_t).log2().floor() as usize).min(MAX_LEVEL);
@@ -193,7 +195,7 @@ impl ShadeLod {
     #[inline]
     pub(super) fn level(&self, t: f64) -> usize {
         let f = t * self.footprint_per_t;
-        if !(f >= 2.0) {
+        if f.is_nan() || f < 2.0 {
             return 0;
         }
         (f.log2() as usize).min(self.levels.len())
@@ -258,8 +260,8 @@ impl ShadeLod {
         ];
         let mut albedo = [0.0f32; 3];
         for (wk, &k) in wts.iter().zip(&ks) {
-            for ch in 0..3 {
-                albedo[ch] += wk * lv.albedo[k][ch];
+            for (a, v) in albedo.iter_mut().zip(lv.albedo[k]) {
+                *a += wk * v;
             }
         }
         let pts = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
