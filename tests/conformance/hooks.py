@@ -1,8 +1,12 @@
 """Schemathesis hooks for `tests/it/conformance.rs` (issue 20): positive cases carry real files,
-and respect the few rules of the API that JSON Schema cannot state.
+and respect the few rules of the API that OpenAPI 3.1 (JSON Schema 2020-12) cannot state.
 
-Loaded with `SCHEMATHESIS_HOOKS=hooks` and `PYTHONPATH=tests/conformance`. Only cases generated in
-the positive mode are touched: a negative case keeps every violation schemathesis put in it.
+Loaded with `SCHEMATHESIS_HOOKS=hooks` and `PYTHONPATH=tests/conformance` (both set by
+`tests/it/conformance.rs`). Only cases generated in the positive mode are touched: a negative case
+keeps every violation schemathesis put in it. Every repair below is for a rule JSON Schema has no
+keyword for (a comparison between two values of the request, or with a deployment setting, or
+with what exists on the server); everything a schema can say (ranges, exclusive or dependent
+fields, per-mode edit bodies, tuple items) is said in `openapi.yaml` and not repaired here.
 
 1. File parts. A multipart file part is bytes; `openapi.yaml` states which formats each part
    takes (`encoding.<part>.contentType`), and a schema cannot say "a DEM". The positive cases of
@@ -15,21 +19,33 @@ the positive mode are touched: a negative case keeps every violation schemathesi
    where the rule allows:
    - `width` × `height` at most the server's `max_output_pixels` (a deployment setting:
      `PHENOMENA_ST_MAX_PIXELS`): the height is lowered;
-   - `camera.eye` ≠ `camera.target`: the eye is moved;
+   - `camera.eye` ≠ `camera.target` (two arrays compared): the eye is moved;
    - `slope_end_deg` ≥ `slope_start_deg`, `full_snow_quantile` ≥ `snowline_quantile`
-     (snow-terrain, also against the `winter` preset's values when one is not given): swapped or
-     raised;
+     (snow-terrain, also against the preset's values when one is not given), and in each run of
+     a `sweep` over one of them: swapped, raised or capped;
+   - dust `bends` < `fiber_length` (default 48): `bends` lowered; `shells` × `texture_size`² and
+     `fibers` × (`fiber_length` + 1) within dust's memory budgets: `shells`, `fibers` lowered;
+   - a raw volume's `dims` multiply to at most the voxel limit: the largest side halved;
+   - snow-cover `snowfall` schedule hours strictly increasing: the pairs sorted by hour and
+     repeated hours dropped;
    - edit pixels (`from`, `to`, `strokes[].pixels`) inside the view (`width` × `height`,
      default 960 × 540): taken modulo the size;
-   - a `set` edit gives at least one of its fields: `kappa` is added;
    - a volume's `bounds` have min < max and sides not thinner than the documented bound: widened;
-   - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume).
+   - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume):
+     which ids exist is the server's state, not the schema's.
 3. One filter (`filter_case`), on negative cases only: see its doc.
+4. Clean-up (`after_call`): the job an accepted request queued is canceled once its answer is
+   in, so the checks do not wait behind thousands of renders (see its doc).
 """
 
+import copy
+import json
 import os
 import struct
 import zlib
+from urllib.parse import urljoin
+
+import requests
 
 import schemathesis
 from schemathesis import GenerationMode
@@ -37,13 +53,23 @@ from schemathesis import GenerationMode
 FILES = os.environ.get("PHENOMENA_ST_FILES", "")
 MAX_PIXELS = int(os.environ.get("PHENOMENA_ST_MAX_PIXELS", "33177600"))
 
-# The `winter` preset's values of the ordered pairs (engine `DescriptorParams::default`).
+# Each snow-terrain preset's values of the ordered pairs (engine `DescriptorParams::default` and
+# `DescriptorParams::paper`).
 PRESET_PAIRS = {
-    "slope_start_deg": 35.0,
-    "slope_end_deg": 60.0,
-    "snowline_quantile": 0.3,
-    "full_snow_quantile": 0.7,
+    "winter": {
+        "slope_start_deg": 35.0,
+        "slope_end_deg": 60.0,
+        "snowline_quantile": 0.3,
+        "full_snow_quantile": 0.7,
+    },
+    "paper": {
+        "slope_start_deg": 90.0,
+        "slope_end_deg": 90.0,
+        "snowline_quantile": 0.3,
+        "full_snow_quantile": 1.0,
+    },
 }
+PAIRS = (("slope_start_deg", "slope_end_deg"), ("snowline_quantile", "full_snow_quantile"))
 # The default view of a cloud scene edit.
 EDIT_VIEW = (960, 540)
 # Default output sizes per operation (for a case that gives one side only).
@@ -53,8 +79,12 @@ DEFAULT_SIZE = {
     "submitDust": (960, 640),
     "submitCloud": (960, 540),
     "renderCloudScene": (960, 540),
-    "editCloudScene": EDIT_VIEW,
+    "editCloudSceneSunColor": EDIT_VIEW,
+    "editCloudSceneAmbient": EDIT_VIEW,
+    "editCloudSceneSunDirection": EDIT_VIEW,
+    "editCloudSceneSet": EDIT_VIEW,
 }
+EDIT_OPS = tuple(k for k in DEFAULT_SIZE if k.startswith("editCloudScene"))
 # Uploaded assets of each kind (`tests/it/conformance.rs`), for JSON bodies naming one.
 ASSETS = {
     "submitSnowTerrain": os.environ.get("PHENOMENA_ST_DEM_ASSET"),
@@ -87,7 +117,16 @@ def _png(width=4, height=4):
 _cache = {}
 
 
-def _file(part):
+# The maps' DEM: georeferenced with an EPSG-coded CRS (maps are reprojected to web mercator).
+MAP_DEM = os.path.join(
+    os.path.dirname(os.path.abspath(__file__)), "..", "data", "dem", "kagwene_cameroon_elev_30m_utm32n.tif"
+)
+
+
+def _file(part, op=""):
+    if op == "createMap" and part == "dem":
+        with open(MAP_DEM, "rb") as f:
+            return f.read()
     if part not in _cache:
         _cache[part] = {
             "dem": lambda: _read("dem.asc"),
@@ -104,7 +143,9 @@ FILE_PARTS = ("dem", "mesh", "volume", "ortho")
 
 def _positive(case):
     meta = getattr(case, "meta", None)
-    return meta is not None and meta.generation.mode == GenerationMode.POSITIVE
+    # A case without metadata is judged by neither the positive nor the negative check
+    # (both need it); it is sent repaired like a positive one.
+    return meta is None or meta.generation.mode == GenerationMode.POSITIVE
 
 
 def _fit_pixels(obj, default):
@@ -143,10 +184,14 @@ def _distinct_eye(obj):
             cam["eye"] = [eye[0] + 1.0] + list(eye[1:])
 
 
-def _order(obj, lo, hi):
-    a = obj.get(lo, PRESET_PAIRS[lo])
-    b = obj.get(hi, PRESET_PAIRS[hi])
-    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and b < a:
+def _num(x):
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _order(obj, lo, hi, preset):
+    a = obj.get(lo, preset[lo])
+    b = obj.get(hi, preset[hi])
+    if _num(a) and _num(b) and b < a:
         if lo in obj and hi in obj:
             obj[lo], obj[hi] = b, a
         elif lo in obj:
@@ -156,11 +201,29 @@ def _order(obj, lo, hi):
 
 
 def _terrain(params):
+    """The ordered pairs, in the params and in every run of a `sweep` (each value replaces the
+    swept parameter): a swept lower bound is capped at its partner, a swept upper bound raised to
+    it."""
     if not isinstance(params, dict):
         return
-    if params.get("preset", "winter") == "winter":
-        _order(params, "slope_start_deg", "slope_end_deg")
-        _order(params, "snowline_quantile", "full_snow_quantile")
+    preset = PRESET_PAIRS.get(params.get("preset", "winter"))
+    if preset is None:
+        return
+    for lo, hi in PAIRS:
+        _order(params, lo, hi, preset)
+    sweep = params.get("sweep")
+    if not isinstance(sweep, dict) or not isinstance(sweep.get("values"), list):
+        return
+    name, values = sweep.get("param"), sweep["values"]
+    for lo, hi in PAIRS:
+        if name == lo:
+            bound = params.get(hi, preset[hi])
+            if _num(bound):
+                sweep["values"] = [min(v, bound) if _num(v) else v for v in values]
+        elif name == hi:
+            bound = params.get(lo, preset[lo])
+            if _num(bound):
+                sweep["values"] = [max(v, bound) if _num(v) else v for v in values]
 
 
 def _inside(p, w, h):
@@ -182,7 +245,52 @@ def _edit(body):
             s["pixels"] = [_inside(p, w, h) for p in s["pixels"]]
 
 
-SET_FIELDS = ("kappa", "sun_direction", "sun_azimuth_deg", "sun_color", "scattering", "albedo")
+# Dust's memory budgets (engine `dust::params`): `shells` × `texture_size`² texels at most
+# MAX_TEXELS, `fibers` × (`fiber_length` + 1) trail texels at most MAX_TRAIL.
+MAX_TEXELS = 1 << 26
+MAX_TRAIL = 1 << 25
+
+
+def _dust(params):
+    """`bends` < `fiber_length`; the texel and trail budgets (products of two fields)."""
+    if not isinstance(params, dict):
+        return
+    length = params.get("fiber_length", 48)
+    bends = params.get("bends", 2)
+    if isinstance(length, int) and isinstance(bends, int) and bends >= length:
+        params["bends"] = max(0, length - 1)
+    shells, size = params.get("shells", 32), params.get("texture_size", 512)
+    if isinstance(shells, int) and isinstance(size, int) and shells * size * size > MAX_TEXELS:
+        params["shells"] = max(1, MAX_TEXELS // (size * size))
+    fibers = params.get("fibers", 5000)
+    if isinstance(fibers, int) and isinstance(length, int) and fibers * (length + 1) > MAX_TRAIL:
+        params["fibers"] = MAX_TRAIL // (length + 1)
+
+
+# The cloud pipelines' raw-volume `dims`: at most this many voxels in all (`max_input_cells`).
+MAX_VOXELS = 1 << 26
+
+
+def _dims(params):
+    """A raw volume's `dims`: their product within the voxel limit (each side lowered in turn)."""
+    d = params.get("dims") if isinstance(params, dict) else None
+    if isinstance(d, list) and len(d) == 3 and all(isinstance(n, int) and n >= 1 for n in d):
+        d = list(d)
+        while d[0] * d[1] * d[2] > MAX_VOXELS:
+            k = d.index(max(d))
+            d[k] = max(1, d[k] // 2)
+        params["dims"] = d
+
+
+def _snowfall(params):
+    """A `snowfall` schedule's hours strictly increasing."""
+    sched = params.get("snowfall") if isinstance(params, dict) else None
+    if isinstance(sched, list) and all(isinstance(p, list) and len(p) == 2 for p in sched):
+        out = []
+        for p in sorted(sched, key=lambda p: p[0]):
+            if not out or p[0] > out[-1][0]:
+                out.append(p)
+        params["snowfall"] = out
 
 
 @schemathesis.hook
@@ -191,7 +299,7 @@ def filter_case(ctx, case):
     boolean: on the wire it is that text, a valid (tiny) file the server cannot and should not
     tell from one (its refusals of what the schema excludes are asserted by
     `api::asset_uploads_refuse_what_the_schema_refuses`)."""
-    op = ctx.operation.definition.raw.get("operationId", "") if ctx.operation else ""
+    op = _op(ctx, case)
     if op == "uploadAsset" and not _positive(case) and isinstance(case.body, dict):
         f = case.body.get("file")
         if f is not None and not isinstance(f, (str, bytes)):
@@ -199,44 +307,132 @@ def filter_case(ctx, case):
     return True
 
 
+def _pending_jobs(body):
+    """The URLs of the unfinished jobs an accepted answer names: a job (`url`, with `events_url`),
+    a cloud scene version (`job_url`), a scene (its `versions`)."""
+    if not isinstance(body, dict):
+        return []
+    if isinstance(body.get("events_url"), str) and isinstance(body.get("url"), str):
+        return [body["url"]] if body.get("status") in ("queued", "running") else []
+    if isinstance(body.get("job_url"), str):
+        return [body["job_url"]] if body.get("status") == "pending" else []
+    versions = body.get("versions")
+    if isinstance(versions, list):
+        return [u for v in versions for u in _pending_jobs(v)]
+    return []
+
+
+@schemathesis.hook
+def after_call(ctx, case, response):
+    """Cancels the job an accepted request queued (`DELETE` on its URL), after the answer is
+    received and whatever it is checked against is fixed. The contract under test is what the
+    server accepts and answers, not the render: the jobs of the thousands of accepted cases would
+    otherwise run one after another behind the checks (over 22 minutes of rendering at 140 % CPU
+    in session 12). The answer itself is untouched; the cancel's own answer is not checked here
+    (`cancelJob` is exercised as an operation of its own)."""
+    if response.status_code not in (200, 201, 202) or response.request is None:
+        return
+    if (response.request.method or "").upper() != "POST":
+        return
+    try:
+        body = json.loads(response.content)
+    except ValueError:
+        return
+    for url in _pending_jobs(body):
+        try:
+            requests.delete(urljoin(response.request.url, url), timeout=10, headers=_auth(response))
+        except requests.RequestException:
+            pass
+
+
+def _auth(response):
+    a = response.request.headers.get("Authorization")
+    return {"Authorization": a} if a else {}
+
+
 @schemathesis.hook
 def before_call(ctx, case, kwargs):
     """Applied to every case before it is sent (every phase, the coverage phase included)."""
-    _repair(ctx, case)
+    _repair(ctx, case, kwargs)
 
 
-def _repair(ctx, case):
-    if not _positive(case):
+def _op(ctx, case):
+    """The case's operationId (from the case itself: the hook context names no operation in
+    every phase)."""
+    operation = getattr(case, "operation", None) or getattr(ctx, "operation", None)
+    return operation.definition.raw.get("operationId", "") if operation is not None else ""
+
+
+def _multipart(body):
+    """The parts of a multipart body for `requests` (`files=`): file parts as files, the rest
+    (`params`) as JSON."""
+    parts = []
+    for name, value in body.items():
+        if name in FILE_PARTS:
+            parts.append((name, (name, value, "application/octet-stream")))
+        elif isinstance(value, (bytes, str)):
+            parts.append((name, (None, value)))
+        else:
+            parts.append((name, (None, json.dumps(value), "application/json")))
+    return parts
+
+
+def _body_positive(case):
+    """Whether the case's body is schema-valid (its own component's mode; the case's overall mode
+    when it has none). A body repaired for the rules across fields loses no schema violation, so
+    a case negative through another component (a header, the query) stays negative."""
+    meta = getattr(case, "meta", None)
+    if meta is None:
+        return True
+    for location, info in (getattr(meta, "components", None) or {}).items():
+        if getattr(location, "name", "") == "BODY":
+            return info.mode == GenerationMode.POSITIVE
+    return meta.generation.mode == GenerationMode.POSITIVE
+
+
+def _repair(ctx, case, kwargs):
+    if not _body_positive(case):
         return case
-    op = ctx.operation.definition.raw.get("operationId", "") if ctx.operation else ""
-    body = case.body if isinstance(case.body, dict) else None
-    if body is None:
+    op = _op(ctx, case)
+    if not isinstance(case.body, dict):
         return case
+    # A copy: schemathesis may build several cases on the same nested objects (a negative case
+    # on a positive one's `params`), and a repair must reach this case only.
+    body = copy.deepcopy(case.body)
     multipart = (case.media_type or "").startswith("multipart/")
     if multipart:
+        # Sent as the request's own body (`files=`), the case left as generated: schemathesis
+        # re-validates a case a hook edits, and a body holding bytes never validates (it cannot
+        # check binary against a schema), so the edited positive case would count as negative.
         for part in FILE_PARTS:
             if part in body:
-                body[part] = _file(part)
-    elif ASSETS.get(op) and "asset" in body:
+                body[part] = _file(part, op)
+    else:
+        case.body = body
+    if not multipart and ASSETS.get(op) and "asset" in body:
         body["asset"] = ASSETS[op]
-    if op.startswith("submit") or op == "createCloudScene":
+    if op.startswith("submit") or op in ("createCloudScene", "createMap"):
         if not isinstance(body.get("params"), dict) and body.get("params") is None and op in DEFAULT_SIZE:
             body["params"] = {}
         params = body.get("params")
     else:
         params = body
-    if op in DEFAULT_SIZE and op != "editCloudScene":
+    if op in DEFAULT_SIZE and op not in EDIT_OPS:
         _fit_pixels(params, DEFAULT_SIZE[op])
         _distinct_eye(params)
     if op in ("submitCloud", "createCloudScene"):
         _bounds(params)
-    if op == "submitSnowTerrain":
+        _dims(params)
+    if op in ("submitSnowTerrain", "createMap"):
         _terrain(params)
-    if op == "editCloudScene":
+    if op == "submitDust":
+        _dust(params)
+    if op == "submitSnowCover":
+        _snowfall(params)
+    if op in EDIT_OPS:
         _fit_pixels(body, EDIT_VIEW)
         _distinct_eye(body)
         _edit(body)
-        kind = (case.path_parameters or {}).get("kind")
-        if kind == "set" and not any(k in body for k in SET_FIELDS):
-            body["kappa"] = 1.0
+    if multipart:
+        kwargs["files"] = _multipart(body)
     return case

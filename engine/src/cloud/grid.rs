@@ -8,6 +8,9 @@ use crate::geom::Volume;
 /// (SPEC §3.3), the ambient edit's pinned voxels and κ's column rays.
 pub const DENSITY_THRESHOLD: f32 = 0.01;
 
+/// At most this many samples per voxel crossed along a ray ([`GridFrame::samples`]).
+pub const MAX_SAMPLES_PER_CROSSING: f64 = 8.0;
+
 /// The grid's placement in the world: voxel `i` along axis `k` has its centre at
 /// `lo[k] + (i + 0.5)·h[k]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,6 +42,22 @@ impl GridFrame {
     /// Smallest voxel edge, world units.
     pub fn min_h(&self) -> f64 {
         self.h[0].min(self.h[1]).min(self.h[2])
+    }
+
+    /// How many equal samples a ray segment of length `len` along unit `d` takes at about
+    /// `step` smallest voxel edges apart: ⌈len / (step · min h)⌉, the renderer's reading of
+    /// Eqs. 1–3's step, but at most [`MAX_SAMPLES_PER_CROSSING`] samples per voxel the segment
+    /// crosses (Σₖ len·|dₖ| / hₖ crossings, ÷ `step`). On grids whose voxel sides differ by
+    /// 8× or less (every real volume we read) the first term is the smaller and nothing
+    /// changes; on a box 10⁸ units long with voxels 1 unit across, the smallest side alone would
+    /// ask for billions of samples per ray while the ray crosses at most Σ dims voxels: the
+    /// count stays bounded by the grid, as the sun sweep's is ([`super::light`]).
+    #[inline]
+    pub fn samples(&self, len: f64, d: [f64; 3], step: f64) -> usize {
+        let by_edge = len / (step * self.min_h());
+        let crossings: f64 = (0..3).map(|k| len * d[k].abs() / self.h[k]).sum();
+        let cap = MAX_SAMPLES_PER_CROSSING * crossings / step;
+        by_edge.min(cap).ceil().max(1.0) as usize
     }
 
     #[inline]

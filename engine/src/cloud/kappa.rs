@@ -16,7 +16,8 @@
 //! [`DENSITY_THRESHOLD`]). So the median optical depth through the
 //! cloud along those rays is exactly [`TARGET_OPTICAL_DEPTH`], whatever the volume's units, grid
 //! size or box. Columns are integrated with the renderer's trilinear samples, one per smallest
-//! voxel edge (as the renderer's default `step`). An explicit κ always wins; an empty volume keeps [`FALLBACK_KAPPA`].
+//! voxel edge (as the renderer's default `step`, bounded the same way by the voxels crossed:
+//! [`GridFrame::samples`]). An explicit κ always wins; an empty volume keeps [`FALLBACK_KAPPA`].
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -86,7 +87,6 @@ fn columns(volume: &Volume, g: &GridFrame, d: [f64; 3], min_rho: f32) -> Vec<f64
         ve = ve.max(p.dot(v).abs());
     }
     let n = n.to_array();
-    let dt = g.min_h();
     let m = RAYS_PER_SIDE;
     (0..m * m)
         .into_par_iter()
@@ -96,7 +96,7 @@ fn columns(volume: &Volume, g: &GridFrame, d: [f64; 3], min_rho: f32) -> Vec<f64
             let sv = ve * (2.0 * (b + 0.5) / m as f64 - 1.0);
             let o = [0, 1, 2].map(|k| centre[k] + su * u[k] + sv * v[k] - 2.0 * radius * n[k]);
             let (t0, t1) = g.clip(o, n)?;
-            let steps = ((t1 - t0) / dt).ceil().max(1.0) as usize;
+            let steps = g.samples(t1 - t0, n, 1.0);
             let h = (t1 - t0) / steps as f64;
             let (mut sum, mut peak) = (0f64, 0f32);
             for s in 0..steps {

@@ -88,7 +88,7 @@ impl Prepared {
             return empty;
         };
         let len = t1 - t0;
-        let n = (len / (self.step * f.min_h())).ceil().max(1.0) as usize;
+        let n = f.samples(len, d, self.step);
         let dt = len / n as f64;
         // Samples i with t0 + (i + ½)·dt in [ta, tb], widened by one.
         let first = ((ta - t0) / dt - 1.5).max(0.0) as usize;

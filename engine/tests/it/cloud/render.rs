@@ -186,6 +186,52 @@ fn the_default_step_converges() {
     }
 }
 
+/// Samples along a ray stay bounded by the voxels it crosses: a schema-valid box 10⁸ units
+/// long with voxels 1 unit across (sides differing by 10⁷) asked κ's column rays and the
+/// renderer for ⌈len / min h⌉ ≈ 10⁸ samples per ray, so choosing κ at scene creation spun for
+/// hours (found by the strict Schemathesis run). Near-cubic grids keep the edge count exactly.
+#[test]
+fn ray_samples_are_bounded_by_the_voxels_crossed() {
+    use phenomena_engine::cloud::grid::{GridFrame, MAX_SAMPLES_PER_CROSSING};
+    let cubic = GridFrame::of(&blob(20, 1.0));
+    for d in [[1.0, 0.0, 0.0], [0.48, 0.6, 0.64], [0.0, 0.6, -0.8]] {
+        let len = 3.7;
+        let by_edge = (len / cubic.min_h()).ceil() as usize;
+        assert_eq!(cubic.samples(len, d, 1.0), by_edge, "{d:?}");
+        assert_eq!(
+            cubic.samples(len, d, 0.25),
+            (len / (0.25 * cubic.min_h())).ceil() as usize
+        );
+    }
+    let dims = [8usize, 8, 8];
+    let long = Volume::new(
+        dims,
+        vec![1.0; 512],
+        ([0.0, 0.0, 0.0], [1.0e8, 8.0, 8.0]),
+    )
+    .unwrap();
+    let g = GridFrame::of(&long);
+    let bound = MAX_SAMPLES_PER_CROSSING as usize * dims.iter().sum::<usize>() + 1;
+    for d in [[0.6, 0.8, 0.0], [0.48, 0.6, 0.64], [1.0, 0.0, 0.0]] {
+        let (t0, t1) = g.clip([-1.0, 4.0, 4.0], d).unwrap_or((0.0, 1.0e8));
+        let n = g.samples(t1 - t0, d, 1.0);
+        assert!(n >= 1 && n <= bound, "{d:?}: {n} samples, bound {bound}");
+    }
+    // κ from the volume and a render finish, and are finite.
+    let (kappa, choice) = phenomena_engine::cloud::kappa::choose(&long, [0.48, 0.6, 0.64]);
+    assert!(kappa.is_finite() && kappa > 0.0, "{kappa} {choice:?}");
+    let state = CloudState {
+        kappa: Some(kappa),
+        ..CloudState::default()
+    };
+    let light = SunLight::compute(&long, state.sun_direction, kappa, &NoControl).unwrap();
+    let prep = Prepared::new(&long, &light, &state, None);
+    let camera = Camera::orbit([5.0e7, 4.0, 4.0], 200.0, 12.0, 40.0, 40.0);
+    let layers = render_layers(&prep, &camera, 40, 30, &NoControl).unwrap();
+    assert!(layers.alpha.iter().all(|a| a.is_finite()));
+    assert!(layers.alpha.iter().any(|&a| a > 0.01), "the long box is seen");
+}
+
 /// Relative RMS error of the radiance and largest alpha error of a 40×30 render of a 20³ blob
 /// against [`brute_force`].
 fn brute_force_error(kappa: f64, step: f64) -> (f64, f64) {
