@@ -153,8 +153,8 @@ def _fit_pixels(obj, default):
     height."""
     if not isinstance(obj, dict):
         return
-    w, h = obj.get("width", default[0]), obj.get("height", default[1])
-    if isinstance(w, int) and isinstance(h, int) and w * h > MAX_PIXELS:
+    w, h = _int(obj.get("width", default[0])), _int(obj.get("height", default[1]))
+    if w is not None and h is not None and w * h > MAX_PIXELS:
         obj["width"] = w
         obj["height"] = max(16, MAX_PIXELS // w)
         if w * obj["height"] > MAX_PIXELS:
@@ -186,6 +186,18 @@ def _distinct_eye(obj):
 
 def _num(x):
     return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _int(x):
+    """`x` as an int when JSON Schema counts it as an integer (`980` and `980.0` alike: the
+    server accepts both), else None."""
+    if isinstance(x, bool):
+        return None
+    if isinstance(x, int):
+        return x
+    if isinstance(x, float) and x == x and abs(x) != float("inf") and x.is_integer():
+        return int(x)
+    return None
 
 
 def _order(obj, lo, hi, preset):
@@ -227,15 +239,15 @@ def _terrain(params):
 
 
 def _inside(p, w, h):
-    if isinstance(p, list) and len(p) == 2 and all(isinstance(v, int) for v in p):
-        return [p[0] % w, p[1] % h]
+    if isinstance(p, list) and len(p) == 2 and all(_int(v) is not None for v in p):
+        return [_int(p[0]) % w, _int(p[1]) % h]
     return p
 
 
 def _edit(body):
-    w = body.get("width", EDIT_VIEW[0])
-    h = body.get("height", EDIT_VIEW[1])
-    if not (isinstance(w, int) and isinstance(h, int)):
+    w = _int(body.get("width", EDIT_VIEW[0]))
+    h = _int(body.get("height", EDIT_VIEW[1]))
+    if w is None or h is None or w < 1 or h < 1:
         return
     for k in ("from", "to"):
         if k in body:
@@ -255,15 +267,15 @@ def _dust(params):
     """`bends` < `fiber_length`; the texel and trail budgets (products of two fields)."""
     if not isinstance(params, dict):
         return
-    length = params.get("fiber_length", 48)
-    bends = params.get("bends", 2)
-    if isinstance(length, int) and isinstance(bends, int) and bends >= length:
+    length = _int(params.get("fiber_length", 48))
+    bends = _int(params.get("bends", 2))
+    if length is not None and bends is not None and bends >= length:
         params["bends"] = max(0, length - 1)
-    shells, size = params.get("shells", 32), params.get("texture_size", 512)
-    if isinstance(shells, int) and isinstance(size, int) and shells * size * size > MAX_TEXELS:
+    shells, size = _int(params.get("shells", 32)), _int(params.get("texture_size", 512))
+    if shells is not None and size is not None and shells * size * size > MAX_TEXELS:
         params["shells"] = max(1, MAX_TEXELS // (size * size))
-    fibers = params.get("fibers", 5000)
-    if isinstance(fibers, int) and isinstance(length, int) and fibers * (length + 1) > MAX_TRAIL:
+    fibers = _int(params.get("fibers", 5000))
+    if fibers is not None and length is not None and fibers * (length + 1) > MAX_TRAIL:
         params["fibers"] = MAX_TRAIL // (length + 1)
 
 
@@ -274,8 +286,8 @@ MAX_VOXELS = 1 << 26
 def _dims(params):
     """A raw volume's `dims`: their product within the voxel limit (each side lowered in turn)."""
     d = params.get("dims") if isinstance(params, dict) else None
-    if isinstance(d, list) and len(d) == 3 and all(isinstance(n, int) and n >= 1 for n in d):
-        d = list(d)
+    if isinstance(d, list) and len(d) == 3 and all((_int(n) or 0) >= 1 for n in d):
+        d = [_int(n) for n in d]
         while d[0] * d[1] * d[2] > MAX_VOXELS:
             k = d.index(max(d))
             d[k] = max(1, d[k] // 2)
