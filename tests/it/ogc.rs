@@ -564,6 +564,39 @@ async fn stac_item_of_a_projected_dem_matches_gdal() {
         (valid - want).abs() < 0.01,
         "valid {valid} %, want {want} %"
     );
+    // The band statistics are the downloaded file's own: GDAL computes the same from the COG
+    // (`gdalinfo -json -stats`, installed by `.ci/run` for the COG validator).
+    let cog = s
+        .client
+        .get(s.url(item["assets"]["snow_cover"]["href"].as_str().unwrap()))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("snow_cover.tif");
+    std::fs::write(&path, &cog).unwrap();
+    let out = std::process::Command::new("gdalinfo")
+        .args(["-json", "-stats"])
+        .arg(&path)
+        .output()
+        .expect("gdalinfo is needed (apt-get install gdal-bin; .ci/run does)");
+    assert!(out.status.success());
+    let gdal: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let md = &gdal["bands"][0]["metadata"][""];
+    for (ours, theirs) in [
+        ("minimum", "STATISTICS_MINIMUM"),
+        ("maximum", "STATISTICS_MAXIMUM"),
+        ("mean", "STATISTICS_MEAN"),
+        ("stddev", "STATISTICS_STDDEV"),
+    ] {
+        let a = band["statistics"][ours].as_f64().unwrap();
+        let b: f64 = md[theirs].as_str().unwrap().parse().unwrap();
+        assert!((a - b).abs() < 1e-9, "{ours}: {a} here, {b} by GDAL");
+    }
+    assert_eq!(gdal["bands"][0]["noDataValue"], json!(-9999.0));
     // Only the asked output (and the report, always written) was made: the assets are those.
     let assets = item["assets"].as_object().unwrap();
     assert!(assets.contains_key("snow_cover") && !assets.contains_key("render"));
