@@ -134,7 +134,7 @@ pub struct ServeArgs {
     /// Log format. Default text.
     #[arg(long, env = "PHENOMENA_LOG_FORMAT", value_enum)]
     pub log_format: Option<LogFormat>,
-    /// Bearer tokens accepted on every `/v1` route (comma-separated in the flag and the
+    /// Bearer tokens accepted on every `/v1` and `/ogc` route (comma-separated in the flag and the
     /// environment). Default none: no authentication. Never logged.
     #[arg(long, env = "PHENOMENA_AUTH_TOKENS", value_delimiter = ',')]
     pub auth_tokens: Option<Vec<String>>,

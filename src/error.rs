@@ -10,6 +10,9 @@ use serde::Serialize;
 /// Base of the problem `type` URIs (documented in openapi.yaml; they need not resolve).
 const PROBLEM_BASE: &str = "https://phenomena.dev/problems/";
 
+/// Base of the OGC API – Processes exception `type` URIs (OGC 18-062r2 §7.5.2).
+const OGC_EXCEPTION_BASE: &str = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/";
+
 /// What went wrong, as the API names it: every problem `type` URI and title the service reports,
 /// in HTTP responses and in failed jobs' `error`, comes from here and nowhere else.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -45,6 +48,12 @@ pub enum Problem {
     Poisoned,
     /// A job canceled (a cloud scene version whose edit job was canceled).
     Canceled,
+    /// OGC API – Processes: no process of that id (OGC 18-062r2 §7.10, `no-such-process`).
+    NoSuchProcess,
+    /// OGC API – Processes: no job of that id (§7.12, `no-such-job`).
+    NoSuchJob,
+    /// OGC API – Processes: the job has no results yet (§7.13, `result-not-ready`).
+    ResultNotReady,
 }
 
 impl Problem {
@@ -73,13 +82,56 @@ impl Problem {
             Problem::TimeLimit => "time-limit",
             Problem::Poisoned => "poisoned",
             Problem::Canceled => "canceled",
+            Problem::NoSuchProcess => "no-such-process",
+            Problem::NoSuchJob => "no-such-job",
+            Problem::ResultNotReady => "result-not-ready",
         }
     }
 
-    /// The problem's `type` URI.
+    /// The problem's `type` URI: the OGC API – Processes exceptions keep the standard's own URIs
+    /// (OGC 18-062r2 §7.5.2, Table 7), the rest are under [`PROBLEM_BASE`].
     pub fn type_uri(self) -> String {
-        format!("{PROBLEM_BASE}{}", self.slug())
+        match self {
+            Problem::NoSuchProcess | Problem::NoSuchJob | Problem::ResultNotReady => {
+                format!("{OGC_EXCEPTION_BASE}{}", self.slug())
+            }
+            _ => format!("{PROBLEM_BASE}{}", self.slug()),
+        }
     }
+
+    /// The kind whose [`Problem::type_uri`] is `uri` (a failed job's recorded `error.type`).
+    pub fn from_type_uri(uri: &str) -> Option<Problem> {
+        Self::ALL.iter().copied().find(|p| p.type_uri() == uri)
+    }
+
+    /// Every kind.
+    pub const ALL: &'static [Problem] = &[
+        Problem::BadRequest,
+        Problem::NotFound,
+        Problem::MethodNotAllowed,
+        Problem::Unauthorized,
+        Problem::Conflict,
+        Problem::RequestTimeout,
+        Problem::TooLarge,
+        Problem::UnsupportedFormat,
+        Problem::InvalidParameter,
+        Problem::InvalidInput,
+        Problem::QueueFull,
+        Problem::Overloaded,
+        Problem::Unavailable,
+        Problem::Internal,
+        Problem::Unprocessable,
+        Problem::StrokeMissesCloud,
+        Problem::StrokeNotLit,
+        Problem::InputMissing,
+        Problem::Storage,
+        Problem::TimeLimit,
+        Problem::Poisoned,
+        Problem::Canceled,
+        Problem::NoSuchProcess,
+        Problem::NoSuchJob,
+        Problem::ResultNotReady,
+    ];
 
     /// The problem's title. A failed job's title (a job-run problem) differs from the HTTP
     /// response's for the same kind where the job system words it its own way.
@@ -107,6 +159,9 @@ impl Problem {
             Problem::TimeLimit => "Time limit exceeded",
             Problem::Poisoned => "Job poisoned",
             Problem::Canceled => "Canceled",
+            Problem::NoSuchProcess => "No such process",
+            Problem::NoSuchJob => "No such job",
+            Problem::ResultNotReady => "Result not ready",
         }
     }
 
@@ -172,6 +227,22 @@ pub enum ApiError {
     /// Something internal failed; the message is logged, never sent.
     #[error("{0}")]
     Internal(String),
+    /// OGC API – Processes `no-such-process` (404).
+    #[error("{0}")]
+    NoSuchProcess(String),
+    /// OGC API – Processes `no-such-job` (404).
+    #[error("{0}")]
+    NoSuchJob(String),
+    /// OGC API – Processes `result-not-ready` (404).
+    #[error("{0}")]
+    ResultNotReady(String),
+    /// The results of a failed job (OGC 18-062r2 `/req/core/job-results-failed`): the job's own
+    /// recorded problem, with a status code reflecting it.
+    #[error("{}", error.detail)]
+    JobFailed {
+        status: StatusCode,
+        error: crate::jobs::JobError,
+    },
 }
 
 #[derive(Serialize)]
@@ -245,6 +316,13 @@ impl ApiError {
             ApiError::Overloaded { .. } => (StatusCode::TOO_MANY_REQUESTS, Problem::Overloaded),
             ApiError::Unavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, Problem::Unavailable),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, Problem::Internal),
+            ApiError::NoSuchProcess(_) => (StatusCode::NOT_FOUND, Problem::NoSuchProcess),
+            ApiError::NoSuchJob(_) => (StatusCode::NOT_FOUND, Problem::NoSuchJob),
+            ApiError::ResultNotReady(_) => (StatusCode::NOT_FOUND, Problem::ResultNotReady),
+            ApiError::JobFailed { status, error } => (
+                *status,
+                Problem::from_type_uri(&error.kind).unwrap_or(Problem::Internal),
+            ),
         }
     }
 }
@@ -269,9 +347,14 @@ impl IntoResponse for ApiError {
             ApiError::InvalidParameter(p) => (p.to_string(), Some(p.field.clone())),
             other => (other.to_string(), None),
         };
+        let (kind, title) = match &self {
+            // The job's own record: its type URI and title as the job system wrote them.
+            ApiError::JobFailed { error, .. } => (error.kind.clone(), error.title.as_str()),
+            _ => (problem.type_uri(), problem.title()),
+        };
         let body = ProblemBody {
-            kind: problem.type_uri(),
-            title: problem.title(),
+            kind,
+            title,
             status: status.as_u16(),
             detail,
             field,

@@ -108,6 +108,11 @@ pub trait PipelineSet: Send + Sync + 'static {
     fn aux_parts(&self, _pipeline: &str) -> &'static [&'static str] {
         &[]
     }
+    /// Every output a run of the pipeline may produce (see `registry::PipelineKind::outputs`);
+    /// default none known (a test set).
+    fn outputs(&self, _pipeline: &str) -> &'static [registry::OutputKind] {
+        &[]
+    }
     /// Decodes the input with its auxiliary inputs (name, bytes), as a run would, and says
     /// which input an error is about (`None` = the main input, else the auxiliary part's name).
     fn check_with_named_inputs(
@@ -304,6 +309,10 @@ impl PipelineSet for EnginePipelines {
             Some(PipelineKind::SnowTerrain) => &[registry::ORTHO],
             _ => &[],
         }
+    }
+
+    fn outputs(&self, name: &str) -> &'static [registry::OutputKind] {
+        PipelineKind::parse(name).map_or(&[], PipelineKind::outputs)
     }
 
     fn check_with_named_inputs(

@@ -198,6 +198,102 @@ impl PipelineKind {
         Self::ALL.iter().copied().find(|k| k.name() == name)
     }
 
+    /// Every output a run of the pipeline may produce, in the order a run lists them (some only
+    /// when a parameter asks for them): what a description of the pipeline (the OGC API –
+    /// Processes process description) names. A run never produces an output missing here.
+    pub fn outputs(self) -> &'static [OutputKind] {
+        const fn o(
+            name: &'static str,
+            media_type: &'static str,
+            title: &'static str,
+        ) -> OutputKind {
+            OutputKind {
+                name,
+                media_type,
+                title,
+            }
+        }
+        const REPORT: OutputKind = o(
+            "report.json",
+            "application/json",
+            "Resolved parameters, input statistics and stage timings",
+        );
+        const SNOW_TERRAIN: &[OutputKind] = &[
+            o("render.png", "image/png", "The snowy terrain in perspective (RGBA, sRGB)"),
+            o(
+                "snow_cover.tif",
+                "image/tiff",
+                "Snow cover s = 1 − t as a float32 Cloud-Optimized GeoTIFF with the DEM's georeferencing",
+            ),
+            o("descriptor.png", "image/png", "The descriptor t as grey, snow white"),
+            o("terrain.glb", "model/gltf-binary", "The terrain mesh with snow vertex colours"),
+            REPORT,
+            o("sweep.png", "image/png", "Contact sheet of a parameter sweep (only with `sweep`)"),
+        ];
+        const SNOW_COVER: &[OutputKind] = &[
+            o(
+                "render.png",
+                "image/png",
+                "The snow-covered scene (RGBA, sRGB)",
+            ),
+            o("snow.glb", "model/gltf-binary", "The snow mesh"),
+            o("scene.glb", "model/gltf-binary", "The scene with its snow"),
+            o(
+                "displaced.glb",
+                "model/gltf-binary",
+                "The input mesh displaced by the snow",
+            ),
+            o(
+                "timelapse.png",
+                "image/apng",
+                "Snowfall as an animated PNG (only when asked)",
+            ),
+            REPORT,
+        ];
+        const CLOUD: &[OutputKind] = &[
+            o("render.png", "image/png", "The cloud (RGBA, sRGB)"),
+            o(
+                "state.json",
+                "application/json",
+                "The resolved renderer state",
+            ),
+            o(
+                "direct.png",
+                "image/png",
+                "Single scattering layer (only with `layers`)",
+            ),
+            o(
+                "multiple.png",
+                "image/png",
+                "Multiple scattering layer (only with `layers`)",
+            ),
+            o(
+                "ambient.png",
+                "image/png",
+                "Ambient layer (only with `layers`)",
+            ),
+            o(
+                cloud::LAYERS,
+                "application/octet-stream",
+                "Linear layers for editing (only with `layers`)",
+            ),
+        ];
+        const DUST: &[OutputKind] = &[
+            o("render.png", "image/png", "The dusty object (RGBA, sRGB)"),
+            o("fibers.png", "image/png", "The fibre layer"),
+            o("dust_amount.png", "image/png", "The dust amount as grey"),
+            o("dusty.glb", "model/gltf-binary", "The dusty mesh"),
+            REPORT,
+        ];
+        match self {
+            PipelineKind::SnowTerrain => SNOW_TERRAIN,
+            PipelineKind::SnowCover => SNOW_COVER,
+            PipelineKind::Cloud => CLOUD,
+            PipelineKind::CloudEdit => &[],
+            PipelineKind::Dust => DUST,
+        }
+    }
+
     /// The multipart part that carries the input (`dem`, `mesh`, `volume`).
     pub fn input_part(self) -> &'static str {
         match self {
@@ -206,6 +302,17 @@ impl PipelineKind {
             PipelineKind::Cloud | PipelineKind::CloudEdit => "volume",
         }
     }
+}
+
+/// One output a pipeline may produce (see [`PipelineKind::outputs`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OutputKind {
+    /// The output's file name (`render.png`).
+    pub name: &'static str,
+    /// Its IANA media type.
+    pub media_type: &'static str,
+    /// What it is, in a few words.
+    pub title: &'static str,
 }
 
 /// Validated parameters of one pipeline.

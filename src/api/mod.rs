@@ -8,7 +8,9 @@ mod dto;
 mod extract;
 mod jobs;
 mod maps;
+pub mod ogc;
 mod scenes;
+mod stac;
 mod strict_json;
 mod submit;
 mod system;
@@ -81,6 +83,16 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("get", "/v1/maps/{id}"),
     ("get", "/v1/maps/{id}/tilejson.json"),
     ("get", "/v1/maps/{id}/tiles/{layer}/{z}/{x}/{y}.png"),
+    ("get", "/v1/jobs/{id}/stac.json"),
+    ("get", "/ogc"),
+    ("get", "/ogc/conformance"),
+    ("get", "/ogc/processes"),
+    ("get", "/ogc/processes/{processId}"),
+    ("post", "/ogc/processes/{processId}/execution"),
+    ("get", "/ogc/jobs"),
+    ("get", "/ogc/jobs/{id}"),
+    ("delete", "/ogc/jobs/{id}"),
+    ("get", "/ogc/jobs/{id}/results"),
 ];
 
 /// The application router (no socket: tests drive it with `tower::ServiceExt::oneshot`).
@@ -123,6 +135,16 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/jobs/{id}", get(jobs::get).delete(jobs::cancel))
         .route("/v1/jobs/{id}/events", get(jobs::events))
         .route("/v1/jobs/{id}/outputs/{name}", get(jobs::output))
+        .route("/v1/jobs/{id}/stac.json", get(stac::item))
+        // OGC API – Processes – Part 1 (`api::ogc`), under its own prefix: `/` is the studio.
+        .route("/ogc", get(ogc::landing))
+        .route("/ogc/conformance", get(ogc::conformance))
+        .route("/ogc/processes", get(ogc::processes))
+        .route("/ogc/processes/{id}", get(ogc::process))
+        .route("/ogc/processes/{id}/execution", post(ogc::execute))
+        .route("/ogc/jobs", get(ogc::jobs))
+        .route("/ogc/jobs/{id}", get(ogc::job).delete(ogc::dismiss))
+        .route("/ogc/jobs/{id}/results", get(ogc::results))
         .route("/v1/maps", post(maps::create))
         .route("/v1/maps/{id}", get(maps::get))
         .route("/v1/maps/{id}/tilejson.json", get(maps::tilejson))
@@ -157,12 +179,14 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// With `auth_tokens` configured, every `/v1` route needs `Authorization: Bearer <token>`
+/// With `auth_tokens` configured, every `/v1` and `/ogc` route needs `Authorization: Bearer <token>`
 /// (401 with `WWW-Authenticate` otherwise); `/`, `/web/*`, health, readiness, metrics and the
 /// OpenAPI document stay open (probes and the page's shell need no secret). Tokens are compared
 /// by their SHA-256 digests, so the time taken does not depend on how much of a guess matched.
 async fn authenticate(State(st): State<AppState>, req: Request, next: Next) -> Response {
-    if st.cfg.auth_tokens.is_empty() || !req.uri().path().starts_with("/v1/") {
+    let path = req.uri().path();
+    let guarded = path.starts_with("/v1/") || path == ogc::PREFIX || path.starts_with("/ogc/");
+    if st.cfg.auth_tokens.is_empty() || !guarded {
         return next.run(req).await;
     }
     let given = req

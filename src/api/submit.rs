@@ -86,13 +86,34 @@ pub async fn submit(
     let wait = prefer_wait(req.headers(), st.cfg.max_wait_secs);
     let aux_parts = st.jobs.pipelines().aux_parts(pipeline);
     let (raw_params, input, aux_inputs) = read_streamed(&st, req, part, aux_parts).await?;
+    let rec = submit_inputs(&st, pipeline, raw_params, input, aux_inputs).await?;
+    respond(&st, rec, wait).await
+}
 
+/// The submit path after the body is read: validates the parameters, stores the input (and
+/// the auxiliary inputs), answers an identical request with its job, admits the input (queue
+/// room, decode within the memory budget) and queues the job. `POST /v1/{pipeline}` and the
+/// OGC API – Processes execution (`api::ogc`) both come here.
+pub(super) async fn submit_inputs(
+    st: &AppState,
+    pipeline: &'static str,
+    raw_params: serde_json::Value,
+    input: Input,
+    aux_inputs: Vec<(&'static str, Input)>,
+) -> Result<crate::jobs::JobRecord, ApiError> {
+    if !st.jobs.accepting() {
+        return Err(ApiError::Unavailable("the service is shutting down".into()));
+    }
+    let part = st
+        .jobs
+        .pipelines()
+        .input_part(pipeline)
+        .ok_or_else(|| ApiError::NotFound(format!("no pipeline {pipeline}")))?;
     reject_nulls(&raw_params, "")?;
     let pipelines = st.jobs.pipelines().clone();
     let params = pipelines.params(pipeline, &raw_params)?;
     if !aux_inputs.is_empty() {
-        return submit_with_named_inputs(&st, pipeline, part, input, aux_inputs, params, wait)
-            .await;
+        return submit_with_named_inputs(st, pipeline, part, input, aux_inputs, params).await;
     }
 
     // A JSON body names its asset: an identical request already queued, running or done is
@@ -103,25 +124,25 @@ pub async fn submit(
             .find_by_key(&request_key(pipeline, id, params.canonical()))
             .await?
         {
-            return respond(&st, rec, wait).await;
+            return Ok(rec);
         }
     }
 
-    let asset = store_input(&st, input).await?;
+    let asset = store_input(st, input).await?;
     let key = request_key(pipeline, &asset.id, params.canonical());
 
     // An identical request already queued, running or done: no decode, no new job.
     if let Some(rec) = st.jobs.find_by_key(&key).await? {
-        return respond(&st, rec, wait).await;
+        return Ok(rec);
     }
 
     // Admission before work: a full queue is refused before the input is decoded.
-    admission::ensure_queue_room(&st).await?;
+    admission::ensure_queue_room(st).await?;
     // Reject corrupt, unsupported or oversize inputs now, with a 4xx, rather than as a failed
     // job; the decode runs within the memory budget, and a job too large for it is a 413.
-    let admitted = admit_input(&st, pipeline, &params, &asset, &[], part).await?;
+    let admitted = admit_input(st, pipeline, &params, &asset, &[], part).await?;
     admission::ensure_fits(&st.memory, admitted.run_bytes)?;
-    touch_asset(&st, &asset).await?;
+    touch_asset(st, &asset).await?;
 
     let input = InputRef {
         asset: asset.id,
@@ -129,11 +150,12 @@ pub async fn submit(
         aux: Vec::new(),
         memory: admitted.run_bytes,
     };
-    submit_job(&st, pipeline, input, params.into_canonical(), key, wait).await
+    queue_job(st, pipeline, input, params.into_canonical(), key).await
 }
 
-/// [`submit`] with auxiliary inputs: each is stored as an asset, the request key covers them,
-/// and the input is decoded with them (a 4xx naming the part at fault) before the job is queued.
+/// [`submit_inputs`] with auxiliary inputs: each is stored as an asset, the request key covers
+/// them, and the input is decoded with them (a 4xx naming the part at fault) before the job is
+/// queued.
 async fn submit_with_named_inputs(
     st: &AppState,
     pipeline: &'static str,
@@ -141,8 +163,7 @@ async fn submit_with_named_inputs(
     input: Input,
     aux_inputs: Vec<(&'static str, Input)>,
     params: Validated,
-    wait: Option<std::time::Duration>,
-) -> Result<Response, ApiError> {
+) -> Result<crate::jobs::JobRecord, ApiError> {
     let asset = store_input(st, input).await?;
     let mut key_input = asset.id.clone();
     let mut aux_assets = Vec::with_capacity(aux_inputs.len());
@@ -155,7 +176,7 @@ async fn submit_with_named_inputs(
     }
     let key = request_key(pipeline, &key_input, params.canonical());
     if let Some(rec) = st.jobs.find_by_key(&key).await? {
-        return respond(st, rec, wait).await;
+        return Ok(rec);
     }
     admission::ensure_queue_room(st).await?;
     let admitted = admit_input(st, pipeline, &params, &asset, &aux_assets, part).await?;
@@ -175,7 +196,7 @@ async fn submit_with_named_inputs(
         aux,
         memory: admitted.run_bytes,
     };
-    submit_job(st, pipeline, input, params.into_canonical(), key, wait).await
+    queue_job(st, pipeline, input, params.into_canonical(), key).await
 }
 
 /// An unknown asset named for an auxiliary part is named by that part's field (`ortho_asset`).
@@ -188,19 +209,6 @@ fn rename_asset_field(e: ApiError, name: &str) -> ApiError {
         )),
         other => other,
     }
-}
-
-/// Queues a job (or joins an identical one) and answers with it, waiting per `Prefer: wait`.
-pub(super) async fn submit_job(
-    st: &AppState,
-    pipeline: &str,
-    input: InputRef,
-    params: serde_json::Value,
-    key: String,
-    wait: Option<std::time::Duration>,
-) -> Result<Response, ApiError> {
-    let rec = queue_job(st, pipeline, input, params, key).await?;
-    respond(st, rec, wait).await
 }
 
 /// Queues a job (or joins an identical one), mapping a full queue to 429.

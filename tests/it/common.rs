@@ -170,6 +170,9 @@ impl PipelineSet for WithSleepy {
     fn aux_parts(&self, name: &str) -> &'static [&'static str] {
         self.0.aux_parts(name)
     }
+    fn outputs(&self, name: &str) -> &'static [phenomena_engine::registry::OutputKind] {
+        self.0.outputs(name)
+    }
     fn admit(
         &self,
         name: &str,

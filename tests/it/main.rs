@@ -12,6 +12,7 @@ mod faults;
 mod hardening;
 mod load_balancer;
 mod maps;
+mod ogc;
 mod openapi;
 mod overload;
 mod restart;

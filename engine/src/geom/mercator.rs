@@ -122,6 +122,38 @@ impl CrsTransform {
         (x.is_finite() && y.is_finite()).then_some((x, y))
     }
 
+    /// The outline of a north-up grid of `width × height` cells whose corner (column, row) lies
+    /// at `(x0 + column·a, y0 + row·e)` in the CRS (`t = [x0, a, y0, e]`), as longitude/latitude
+    /// in degrees: `k` points a side (a projected grid's edges are curves in WGS 84),
+    /// counter-clockwise from the north-west corner (down the west edge first) and closed
+    /// (the last point repeats the first), the ring order of RFC 7946 §3.1.6. `None` where the
+    /// CRS has no value at a point.
+    pub fn outline_lonlat(
+        &self,
+        t: [f64; 4],
+        width: usize,
+        height: usize,
+        k: usize,
+    ) -> Option<Vec<(f64, f64)>> {
+        let [x0, a, y0, e] = t;
+        let (w, h) = (width as f64, height as f64);
+        let k = k.max(1);
+        let mut ring = Vec::with_capacity(4 * k + 1);
+        // Grid corners in the order NW → SW → SE → NE (counter-clockwise on the map).
+        let corners = [(0.0, 0.0), (0.0, h), (w, h), (w, 0.0)];
+        for side in 0..4 {
+            let (c0, r0) = corners[side];
+            let (c1, r1) = corners[(side + 1) % 4];
+            for i in 0..k {
+                let f = i as f64 / k as f64;
+                let (c, r) = (c0 + f * (c1 - c0), r0 + f * (r1 - r0));
+                ring.push(self.to_lonlat(x0 + c * a, y0 + r * e)?);
+            }
+        }
+        ring.push(ring[0]);
+        Some(ring)
+    }
+
     /// Longitude/latitude in degrees of DEM CRS coordinates.
     pub fn to_lonlat(&self, x: f64, y: f64) -> Option<(f64, f64)> {
         let Some((dem, wgs)) = &self.proj else {

@@ -5,6 +5,7 @@
 //! composed by [`descriptor`]; then [`color`] (§4.2) and [`run`] (rendering and outputs).
 
 pub mod altitude;
+pub mod catalog;
 pub mod color;
 pub mod descriptor;
 pub mod ortho;

@@ -274,25 +274,12 @@ impl MapSource {
 
 /// Bounds, centre and zooms of a DEM.
 fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsError> {
-    let [x0, a, y0, e] = t;
     let (w, h) = (dem.width as f64, dem.height as f64);
     // The outline, 32 points a side: a projected grid's edges are curves in WGS 84.
-    let mut b = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    const K: usize = 32;
-    for i in 0..=K {
-        let f = i as f64 / K as f64;
-        for (c, r) in [(f * w, 0.0), (f * w, h), (0.0, f * h), (w, f * h)] {
-            let (lon, lat) = crs
-                .to_lonlat(x0 + c * a, y0 + r * e)
-                .ok_or(CrsError::Unsupported(dem.georef.epsg.unwrap_or(0)))?;
-            b = [b[0].min(lon), b[1].min(lat), b[2].max(lon), b[3].max(lat)];
-        }
-    }
+    let ring = crs
+        .outline_lonlat(t, dem.width, dem.height, 32)
+        .ok_or(CrsError::Unsupported(dem.georef.epsg.unwrap_or(0)))?;
+    let mut b = lonlat_bbox(&ring);
     let lim = mercator::MAX_LATITUDE;
     b[1] = b[1].clamp(-lim, lim);
     b[3] = b[3].clamp(-lim, lim);
@@ -323,6 +310,19 @@ fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsEr
         cell_m: [dem.dx.abs(), dem.dy.abs()],
         crs: crs_name,
     })
+}
+
+/// West, south, east, north of longitude/latitude points, degrees.
+pub fn lonlat_bbox(points: &[(f64, f64)]) -> [f64; 4] {
+    points.iter().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |b, &(lon, lat)| [b[0].min(lon), b[1].min(lat), b[2].max(lon), b[3].max(lat)],
+    )
 }
 
 /// The grid positions of a region's nodes, `(nx + 1) × (ny + 1)`, NaN where the CRS has none.
