@@ -32,7 +32,9 @@ fields, per-mode edit bodies, tuple items) is said in `openapi.yaml` and not rep
      default 960 × 540): taken modulo the size;
    - a volume's `bounds` have min < max and sides not thinner than the documented bound: widened;
    - a JSON body names an uploaded asset of the operation's kind (a DEM, a mesh, a volume):
-     which ids exist is the server's state, not the schema's.
+     which ids exist is the server's state, not the schema's;
+   - an OGC execute request's `inputs` are those of the process named in the path (its
+     description's inputs and their schemas): see `_ogc_execute`.
 3. One filter (`filter_case`), on negative cases only: see its doc.
 4. Clean-up (`after_call`): the job an accepted request queued is canceled once its answer is
    in, so the checks do not wait behind thousands of renders (see its doc).
@@ -70,15 +72,16 @@ PRESET_PAIRS = {
     },
 }
 PAIRS = (("slope_start_deg", "slope_end_deg"), ("snowline_quantile", "full_snow_quantile"))
-# The default view of a cloud scene edit.
-EDIT_VIEW = (960, 540)
+# The cloud pipeline's default view (engine `cloud::params::DEFAULT_SIZE`, `openapi.yaml`'s
+# `CloudParams.width`/`height` defaults): a scene's renders and edits use it when they give none.
+EDIT_VIEW = (800, 600)
 # Default output sizes per operation (for a case that gives one side only).
 DEFAULT_SIZE = {
     "submitSnowTerrain": (900, 600),
     "submitSnowCover": (960, 640),
     "submitDust": (960, 640),
-    "submitCloud": (960, 540),
-    "renderCloudScene": (960, 540),
+    "submitCloud": EDIT_VIEW,
+    "renderCloudScene": EDIT_VIEW,
     "editCloudSceneSunColor": EDIT_VIEW,
     "editCloudSceneAmbient": EDIT_VIEW,
     "editCloudSceneSunDirection": EDIT_VIEW,
@@ -92,6 +95,8 @@ ASSETS = {
     "submitDust": os.environ.get("PHENOMENA_ST_MESH_ASSET"),
     "submitCloud": os.environ.get("PHENOMENA_ST_VOLUME_ASSET"),
     "createCloudScene": os.environ.get("PHENOMENA_ST_VOLUME_ASSET"),
+    # Maps reproject: a DEM with an EPSG-coded CRS.
+    "createMap": os.environ.get("PHENOMENA_ST_MAP_ASSET"),
 }
 
 
@@ -321,9 +326,11 @@ def filter_case(ctx, case):
 
 def _pending_jobs(body):
     """The URLs of the unfinished jobs an accepted answer names: a job (`url`, with `events_url`),
-    a cloud scene version (`job_url`), a scene (its `versions`)."""
+    a cloud scene version (`job_url`), a scene (its `versions`), an OGC status (`jobID`)."""
     if not isinstance(body, dict):
         return []
+    if isinstance(body.get("jobID"), str):
+        return ["/ogc/jobs/" + body["jobID"]] if body.get("status") in ("accepted", "running") else []
     if isinstance(body.get("events_url"), str) and isinstance(body.get("url"), str):
         return [body["url"]] if body.get("status") in ("queued", "running") else []
     if isinstance(body.get("job_url"), str):
@@ -402,11 +409,80 @@ def _body_positive(case):
     return meta.generation.mode == GenerationMode.POSITIVE
 
 
+# OGC API processes (`POST /ogc/processes/{processId}/execution`): the `/v1` operation whose
+# parameters and rules they share, and the input file each takes.
+OGC_PROCESSES = {
+    "snow-terrain": ("submitSnowTerrain", "dem"),
+    "snow-cover": ("submitSnowCover", "mesh"),
+    "dust": ("submitDust", "mesh"),
+    "cloud": ("submitCloud", "volume"),
+}
+BASE = os.environ.get("PHENOMENA_ST_BASE", "")
+_descriptions = {}
+
+
+def _process_inputs(pid):
+    """The process description's inputs (`GET /ogc/processes/{pid}`), each with its schema."""
+    if pid not in _descriptions:
+        r = requests.get(BASE + "/ogc/processes/" + pid, timeout=30)
+        _descriptions[pid] = r.json().get("inputs", {}) if r.status_code == 200 else {}
+    return _descriptions[pid]
+
+
+def _ogc_execute(case, body):
+    """An execute request's `inputs` are the process's own (its description lists them with
+    their schemas, which depend on the `processId` in the path: a rule across two components of
+    the request that one body schema cannot state). A positive case keeps each generated input
+    that the process has and whose value its schema accepts, names an uploaded asset of the
+    process's kind as the input file, and then follows the `/v1` operation's rules."""
+    pid = (case.path_parameters or {}).get("processId")
+    if pid not in OGC_PROCESSES or not isinstance(body.get("inputs"), dict):
+        return
+    import jsonschema
+
+    submit, part = OGC_PROCESSES[pid]
+    described = _process_inputs(pid)
+    inputs = {}
+    for name, value in body["inputs"].items():
+        schema = (described.get(name) or {}).get("schema")
+        if name in FILE_PARTS or schema is None:
+            continue
+        try:
+            jsonschema.Draft202012Validator(schema).validate(value)
+        except (jsonschema.ValidationError, jsonschema.SchemaError):
+            continue
+        inputs[name] = value
+    inputs[part] = {"href": "/v1/assets/" + (ASSETS.get(submit) or "")}
+    _rules(submit, inputs)
+    body["inputs"] = inputs
+
+
+def _rules(op, params):
+    """The rules across fields of a submit operation's (or scene's) parameters."""
+    if op in DEFAULT_SIZE and op not in EDIT_OPS:
+        _fit_pixels(params, DEFAULT_SIZE[op])
+        _distinct_eye(params)
+    if op in ("submitCloud", "createCloudScene"):
+        _bounds(params)
+        _dims(params)
+    if op in ("submitSnowTerrain", "createMap"):
+        _terrain(params)
+    if op == "submitDust":
+        _dust(params)
+    if op == "submitSnowCover":
+        _snowfall(params)
+
+
 def _repair(ctx, case, kwargs):
     if not _body_positive(case):
         return case
     op = _op(ctx, case)
     if not isinstance(case.body, dict):
+        return case
+    if op == "ogcExecute":
+        body = copy.deepcopy(case.body)
+        _ogc_execute(case, body)
+        case.body = body
         return case
     # A copy: schemathesis may build several cases on the same nested objects (a negative case
     # on a positive one's `params`), and a repair must reach this case only.
@@ -429,18 +505,7 @@ def _repair(ctx, case, kwargs):
         params = body.get("params")
     else:
         params = body
-    if op in DEFAULT_SIZE and op not in EDIT_OPS:
-        _fit_pixels(params, DEFAULT_SIZE[op])
-        _distinct_eye(params)
-    if op in ("submitCloud", "createCloudScene"):
-        _bounds(params)
-        _dims(params)
-    if op in ("submitSnowTerrain", "createMap"):
-        _terrain(params)
-    if op == "submitDust":
-        _dust(params)
-    if op == "submitSnowCover":
-        _snowfall(params)
+    _rules(op, params)
     if op in EDIT_OPS:
         _fit_pixels(body, EDIT_VIEW)
         _distinct_eye(body)

@@ -154,7 +154,7 @@ fn schemathesis_finds_no_failures() {
         let utm = std::fs::read(root.join("tests/data/dem/kagwene_cameroon_elev_30m_utm32n.tif"))
             .unwrap();
         let utm = upload(&s, utm, "kagwene.tif").await;
-        let map = post_json(&s, "/v1/maps", json!({"asset": utm})).await;
+        let map = post_json(&s, "/v1/maps", json!({"asset": utm.clone()})).await;
         let doomed = post_json(&s, "/v1/clouds", json!({"asset": volume})).await;
         let job = settled(&s, job["url"].as_str().unwrap(), finished).await;
         assert_eq!(job["status"], "succeeded", "{job}");
@@ -177,6 +177,8 @@ fn schemathesis_finds_no_failures() {
                 files.path().to_str().unwrap().to_string(),
             ),
             ("PHENOMENA_ST_MAX_PIXELS", MAX_PIXELS.to_string()),
+            ("PHENOMENA_ST_BASE", s.url("")),
+            ("PHENOMENA_ST_MAP_ASSET", utm),
             ("SCHEMATHESIS_HOOKS", "hooks".to_string()),
             (
                 "PYTHONPATH",
