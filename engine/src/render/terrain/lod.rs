@@ -11,7 +11,7 @@
 //! footprint). With the prefiltered attributes the centre sample already is the footprint's
 //! average, neighbouring centres differ by the smooth variation of the filtered field, and the
 //! refinement test ([`super::shade::Px::differs`]) looks at colour steps only between centres
-//! farther apart than a filtered cell: silhouettes, depth jumps and real edges still get the
+//! in neither the same nor adjacent filtered cells: silhouettes, depth jumps and real edges still get the
 //! extra rays.
 //!
 //! **Level choice.** The footprint of a sample at distance `t` is `t · θ` with `θ` the angle of
