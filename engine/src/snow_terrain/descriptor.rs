@@ -489,7 +489,9 @@ pub fn compute(
         sea_cells = t
             .par_chunks_mut(w.max(1))
             .enumerate()
-            .map(|(r, row)| slope_row(row, r, heights, w, h, dx, dy, slope.as_ref(), sea))
+            .map_init(Vec::new, |tan2, (r, row)| {
+                slope_row(row, r, heights, w, h, dx, dy, slope.as_ref(), sea, tan2)
+            })
             .sum();
     } else {
         t.par_iter_mut().for_each(|v| {
@@ -644,8 +646,9 @@ impl SlopeTerm {
 
 /// Step 6b on row `r` of t (`row`): the sea bare, the slope term on land, the clamp to [0, 1];
 /// returns the row's sea cells. Away from the grid's edge and from nodata the gradient is the
-/// central difference of [`gradient2`], computed inline with the same operations (the same
-/// bits); elsewhere [`gradient2`] itself.
+/// central difference of [`gradient2`], computed with the same operations (the same bits) for
+/// the whole row first, in a loop the compiler vectorises, into the scratch row `tan2`; where
+/// that is NaN (a nodata neighbour) and at the grid's edge, [`gradient2`] itself.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn slope_row(
@@ -658,17 +661,28 @@ fn slope_row(
     dy: f32,
     slope: Option<&SlopeTerm>,
     sea: Option<f32>,
+    tan2: &mut Vec<f32>,
 ) -> usize {
     let hrow = &heights[r * w..(r + 1) * w];
-    let inner = r > 0 && r + 1 < h;
-    let (up, dn) = if inner {
-        (
-            &heights[(r - 1) * w..r * w],
-            &heights[(r + 1) * w..(r + 2) * w],
-        )
-    } else {
-        (hrow, hrow)
-    };
+    tan2.clear();
+    tan2.resize(w, f32::NAN);
+    if r > 0 && r + 1 < h && w >= 3 && slope.is_some() {
+        let (up, dn) = (
+            &heights[(r - 1) * w + 1..r * w - 1],
+            &heights[(r + 1) * w + 1..(r + 2) * w - 1],
+        );
+        for ((((t, &a), &b), &u), &d) in tan2[1..w - 1]
+            .iter_mut()
+            .zip(&hrow[..w - 2])
+            .zip(&hrow[2..])
+            .zip(up)
+            .zip(dn)
+        {
+            let gx = (b - a) / (2.0 * dx);
+            let gy = (d - u) / (2.0 * dy);
+            *t = gx * gx + gy * gy;
+        }
+    }
     let mut sea_cells = 0;
     for (c, v) in row.iter_mut().enumerate() {
         if v.is_nan() {
@@ -682,19 +696,12 @@ fn slope_row(
         let f = match slope {
             None => 1.0,
             Some(k) => {
-                let tan2 = if inner && c > 0 && c + 1 < w {
-                    let (a, b, u, d) = (hrow[c - 1], hrow[c + 1], up[c], dn[c]);
-                    if (a + b + u + d).is_nan() {
-                        gradient2(heights, w, h, c, r, dx, dy)
-                    } else {
-                        let gx = (b - a) / (2.0 * dx);
-                        let gy = (d - u) / (2.0 * dy);
-                        gx * gx + gy * gy
-                    }
-                } else {
+                let g = tan2[c];
+                k.factor(if g.is_nan() {
                     gradient2(heights, w, h, c, r, dx, dy)
-                };
-                k.factor(tan2)
+                } else {
+                    g
+                })
             }
         };
         let s = (1.0 - *v) * f;
