@@ -448,10 +448,6 @@ pub fn compute(
     });
     timings.push(("transfer", ms(t0)));
     timings.push(("altitude", altitude_ms));
-    let sea_cells = match sea {
-        Some(s) => dem.heights.par_iter().filter(|&&h| h <= s).count(),
-        None => 0,
-    };
 
     // 5. Smooth t.
     ctl.checkpoint()?;
@@ -485,25 +481,18 @@ pub fn compute(
     let t0 = Instant::now();
     let slope =
         (p.slope_start_deg < 90.0).then(|| SlopeTerm::new(p.slope_start_deg, p.slope_end_deg));
+    let mut sea_cells = 0;
     if slope.is_some() || sea.is_some() {
         let (dx, dy) = (dem.dx as f32, dem.dy as f32);
         let heights = &dem.heights;
-        t.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
-            for (c, v) in row.iter_mut().enumerate() {
-                if v.is_nan() {
-                    continue;
-                }
-                if sea.is_some_and(|s| heights[r * w + c] <= s) {
-                    *v = 1.0;
-                    continue;
-                }
-                let f = slope
-                    .as_ref()
-                    .map_or(1.0, |k| k.factor(gradient2(heights, w, h, c, r, dx, dy)));
-                let s = (1.0 - *v) * f;
-                *v = (1.0 - s).clamp(0.0, 1.0);
-            }
-        });
+        // Rows in parallel; the sea cells counted on the way (integer sums: any order).
+        sea_cells = t
+            .par_chunks_mut(w.max(1))
+            .enumerate()
+            .map_init(Vec::new, |tan2, (r, row)| {
+                slope_row(row, r, heights, w, h, dx, dy, slope.as_ref(), sea, tan2)
+            })
+            .sum();
     } else {
         t.par_iter_mut().for_each(|v| {
             if !v.is_nan() {
@@ -653,6 +642,72 @@ impl SlopeTerm {
             1.0 - x * x * (3.0 - 2.0 * x)
         }
     }
+}
+
+/// Step 6b on row `r` of t (`row`): the sea bare, the slope term on land, the clamp to [0, 1];
+/// returns the row's sea cells. Away from the grid's edge and from nodata the gradient is the
+/// central difference of [`gradient2`], computed with the same operations (the same bits) for
+/// the whole row first, in a loop the compiler vectorises, into the scratch row `tan2`; where
+/// that is NaN (a nodata neighbour) and at the grid's edge, [`gradient2`] itself.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn slope_row(
+    row: &mut [f32],
+    r: usize,
+    heights: &[f32],
+    w: usize,
+    h: usize,
+    dx: f32,
+    dy: f32,
+    slope: Option<&SlopeTerm>,
+    sea: Option<f32>,
+    tan2: &mut Vec<f32>,
+) -> usize {
+    let hrow = &heights[r * w..(r + 1) * w];
+    tan2.clear();
+    tan2.resize(w, f32::NAN);
+    if r > 0 && r + 1 < h && w >= 3 && slope.is_some() {
+        let (up, dn) = (
+            &heights[(r - 1) * w + 1..r * w - 1],
+            &heights[(r + 1) * w + 1..(r + 2) * w - 1],
+        );
+        for ((((t, &a), &b), &u), &d) in tan2[1..w - 1]
+            .iter_mut()
+            .zip(&hrow[..w - 2])
+            .zip(&hrow[2..])
+            .zip(up)
+            .zip(dn)
+        {
+            let gx = (b - a) / (2.0 * dx);
+            let gy = (d - u) / (2.0 * dy);
+            *t = gx * gx + gy * gy;
+        }
+    }
+    let mut sea_cells = 0;
+    for (c, v) in row.iter_mut().enumerate() {
+        if v.is_nan() {
+            continue;
+        }
+        if sea.is_some_and(|s| hrow[c] <= s) {
+            *v = 1.0;
+            sea_cells += 1;
+            continue;
+        }
+        let f = match slope {
+            None => 1.0,
+            Some(k) => {
+                let g = tan2[c];
+                k.factor(if g.is_nan() {
+                    gradient2(heights, w, h, c, r, dx, dy)
+                } else {
+                    g
+                })
+            }
+        };
+        let s = (1.0 - *v) * f;
+        *v = (1.0 - s).clamp(0.0, 1.0);
+    }
+    sea_cells
 }
 
 /// tan² of the slope of `f` at (c, r): central differences, one-sided at the grid's edge and next

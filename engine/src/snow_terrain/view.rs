@@ -125,7 +125,7 @@ pub fn camera(spec: &CameraSpec, scene: &TerrainScene, aspect: f64, fill: bool) 
     }
     const MARGIN: f64 = 0.95;
     let mut center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-    let mut cam = Camera::orbit_framing(
+    let mut cam = Camera::orbit_fit(
         center,
         azimuth_deg,
         elevation_deg,
@@ -159,7 +159,7 @@ pub fn camera(spec: &CameraSpec, scene: &TerrainScene, aspect: f64, fill: bool) 
         center = (DVec3::from(center)
             + (r * (cx * d * tan_half * aspect) + u * (cy * d * tan_half)))
             .to_array();
-        cam = Camera::orbit_framing(
+        cam = Camera::orbit_fit(
             center,
             azimuth_deg,
             elevation_deg,

@@ -160,23 +160,27 @@ pub fn sky_view_factor(
     let mut data = vec![255u8; w * h];
     // Row by row, direction by direction and step by step: for one (direction, step) the samples
     // of a row's points are one contiguous run of a single row of the grid, so the inner loop is
-    // a plain loop over slices that the compiler vectorises. Each point's arithmetic (and its
-    // order of accumulation over the directions) is the per-point loop's: the same bytes out. A
+    // a plain loop over slices that the compiler vectorises. Each point's order of
+    // accumulation over the directions is the per-point loop's. The horizon search runs in
+    // `f32` (the heights' own precision; twice the lanes of `f64`): a horizon's tangent moves
+    // by ~10⁻⁷ relative, below the byte's 1/255 step but for the rare value on a rounding
+    // edge; the tangent plane's and the sines' arithmetic stays `f64`, and a direction with no
+    // sample above the tangent plane adds exactly 0 as before. A
     // direction's march ends at its first sample off the grid, and the points for which a step
-    // stays on the grid are a range that only shrinks as the step grows. Scratch: five `f64`
-    // rows per rayon task (`try_for_each_init`), nothing per row.
+    // stays on the grid are a range that only shrinks as the step grows. Scratch: four `f64`
+    // and two `f32` rows per rayon task (`try_for_each_init`), nothing per row.
     data.par_chunks_mut(w.max(1))
         .enumerate()
         .try_for_each_init(
-            || vec![0.0f64; 5 * w],
-            |scratch, (j, row)| {
+            || (vec![0.0f64; 4 * w], vec![0.0f32; 2 * w]),
+            |(scratch, scratch32), (j, row)| {
                 if j % 16 == 0 {
                     ctl.checkpoint()?;
                 }
                 let (gx, rest) = scratch.split_at_mut(w);
                 let (gz, rest) = rest.split_at_mut(w);
-                let (tan, rest) = rest.split_at_mut(w);
-                let (best, sum_sin) = rest.split_at_mut(w);
+                let (tan, sum_sin) = rest.split_at_mut(w);
+                let (best, tan32) = scratch32.split_at_mut(w);
                 let h_row = &hs[j * w..(j + 1) * w];
                 // Central-difference gradient (one-sided at borders and next to nodata).
                 let at = |ci: usize, cj: usize| f64::from(hs[cj * w + ci]);
@@ -207,13 +211,15 @@ pub fn sky_view_factor(
                 let sin = |t: f64| t / (1.0 + t * t).sqrt();
                 for &(di, dj, len, steps) in &dirs {
                     // tan τ of the tangent plane along this azimuth.
-                    for ((t, b), (&gx, &gz)) in tan
+                    for (((t, t32), b), (&gx, &gz)) in tan
                         .iter_mut()
+                        .zip(tan32.iter_mut())
                         .zip(best.iter_mut())
                         .zip(gx.iter().zip(gz.iter()))
                     {
                         *t = (gx * di as f64 * cdx + gz * dj as f64 * cdy) / len;
-                        *b = *t;
+                        *t32 = *t as f32;
+                        *b = *t32;
                     }
                     for &k in &STEPS[..steps] {
                         let cj = j as isize + dj * k as isize;
@@ -231,18 +237,26 @@ pub fn sky_view_factor(
                         }
                         let src = &hs[cj as usize * w..(cj as usize + 1) * w];
                         let src = &src[(i0 as isize + off) as usize..(i1 as isize + off) as usize];
-                        let dist = k as f64 * len;
+                        let dist = (k as f64 * len) as f32;
                         for ((b, &h0), &hk) in best[i0..i1].iter_mut().zip(&h_row[i0..i1]).zip(src)
                         {
-                            let t = f64::from(hk - h0) / dist;
-                            // NaN (nodata) fails the compare.
-                            if t > *b {
-                                *b = t;
-                            }
+                            let t = (hk - h0) / dist;
+                            // NaN (nodata) fails the compare. A select, not a branch, so
+                            // that the loop vectorises (the branch's conditional store kept
+                            // it scalar).
+                            *b = if t > *b { t } else { *b };
                         }
                     }
-                    for ((acc, &b), &t) in sum_sin.iter_mut().zip(best.iter()).zip(tan.iter()) {
-                        *acc += sin(b) - sin(t);
+                    for (((acc, &b), &t32), &t) in sum_sin
+                        .iter_mut()
+                        .zip(best.iter())
+                        .zip(tan32.iter())
+                        .zip(tan.iter())
+                    {
+                        // Unoccluded (no sample above the tangent plane): exactly 0.
+                        if b > t32 {
+                            *acc += sin(f64::from(b)) - sin(t);
+                        }
                     }
                 }
                 for ((out, &h0), &s) in row.iter_mut().zip(h_row).zip(sum_sin.iter()) {

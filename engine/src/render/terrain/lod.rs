@@ -11,7 +11,7 @@
 //! footprint). With the prefiltered attributes the centre sample already is the footprint's
 //! average, neighbouring centres differ by the smooth variation of the filtered field, and the
 //! refinement test ([`super::shade::Px::differs`]) looks at colour steps only between centres
-//! farther apart than a filtered cell: silhouettes, depth jumps and real edges still get the
+//! in neither the same nor adjacent filtered cells: silhouettes, depth jumps and real edges still get the
 //! extra rays.
 //!
 //! **Level choice.** The footprint of a sample at distance `t` is `t · θ` with `θ` the angle of
@@ -44,6 +44,8 @@ pub(super) struct LodLevel {
     pub(super) h: usize,
     /// Mean heights (world units; NaN = nodata).
     pub(super) height: Vec<f32>,
+    /// Their gradients (dh/dx, dh/dz) per point (see `level_gradient`).
+    pub(super) grad: Vec<[f32; 2]>,
     /// Mean sun visibility, 0–1 (empty without a sun map).
     pub(super) sun: Vec<f32>,
     /// Mean linear albedo (empty until [`ShadeLod::with_albedo`]).
@@ -55,9 +57,6 @@ pub(super) struct ShadeLod {
     pub(super) levels: Vec<LodLevel>,
     /// `θ / cell`: multiplied by the distance `t`, the footprint in cells.
     pub(super) footprint_per_t: f64,
-    /// Cell sizes (world units).
-    dx: f64,
-    dy: f64,
 }
 
 /// Means of the `2 × 2` blocks of a `w × h` grid of `N`-channel values `get(k)`, over the
@@ -84,6 +83,18 @@ fn halve<const N: usize, T: Send + Copy + Default>(
         for (i, o) in row.iter_mut().enumerate() {
             let c0 = 2 * i;
             let c1 = (c0 + 1).min(w - 1);
+            // Whole blocks of valid points (nearly all): the same sums in the same order,
+            // without the per-point tests.
+            if second && c1 != c0 && !(v0[c0] + v0[c1] + v1[c0] + v1[c1]).is_nan() {
+                let k = r0 * w + c0;
+                let (a, b, c, d) = (get(k), get(k + 1), get(k + w), get(k + w + 1));
+                let mut acc = [0.0f32; N];
+                for (ch, x) in acc.iter_mut().enumerate() {
+                    *x = 0.0 + a[ch] + b[ch] + c[ch] + d[ch];
+                }
+                *o = make(acc.map(|a| a * 0.25));
+                continue;
+            }
             let mut acc = [0.0f32; N];
             let mut n = 0u32;
             let mut add = |ok: bool, k: usize| {
@@ -108,6 +119,45 @@ fn halve<const N: usize, T: Send + Copy + Default>(
         }
     });
     out
+}
+
+/// Gradient (dh/dx, dh/dz) of the `w × h` level heights `height` (points `2^l` cells of
+/// `dx × dy` apart) at point (`c`, `r`): central differences, one-sided at borders and next to
+/// nodata, 0 where neither neighbour holds data.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn level_gradient(
+    height: &[f32],
+    w: usize,
+    h: usize,
+    l: usize,
+    dx: f64,
+    dy: f64,
+    c: usize,
+    r: usize,
+) -> [f32; 2] {
+    let at = |c: usize, r: usize| height[r * w + c];
+    let centre = at(c, r);
+    let s = (1u64 << l) as f32;
+    let diff = |lo: Option<f32>, hi: Option<f32>, step: f32| -> f32 {
+        match (lo.filter(|v| !v.is_nan()), hi.filter(|v| !v.is_nan())) {
+            (Some(a), Some(b)) => (b - a) / (2.0 * step),
+            (Some(a), None) if !centre.is_nan() => (centre - a) / step,
+            (None, Some(b)) if !centre.is_nan() => (b - centre) / step,
+            _ => 0.0,
+        }
+    };
+    let gx = diff(
+        (c > 0).then(|| at(c - 1, r)),
+        (c + 1 < w).then(|| at(c + 1, r)),
+        s * dx as f32,
+    );
+    let gz = diff(
+        (r > 0).then(|| at(c, r - 1)),
+        (r + 1 < h).then(|| at(c, r + 1)),
+        s * dy as f32,
+    );
+    [gx, gz]
 }
 
 impl ShadeLod {
@@ -149,10 +199,19 @@ impl ShadeLod {
                 _ => Vec::new(),
             };
             let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            // The level's gradients once (every hit reads four of them).
+            let l = levels.len() + 1;
+            let mut grad = vec![[0.0f32; 2]; nw * nh];
+            grad.par_chunks_mut(nw).enumerate().for_each(|(r, row)| {
+                for (c, g) in row.iter_mut().enumerate() {
+                    *g = level_gradient(&height_next, nw, nh, l, dx, dy, c, r);
+                }
+            });
             levels.push(LodLevel {
                 w: nw,
                 h: nh,
                 height: height_next,
+                grad,
                 sun: sun_next,
                 albedo: Vec::new(),
             });
@@ -161,8 +220,6 @@ impl ShadeLod {
         (!levels.is_empty()).then_some(Self {
             levels,
             footprint_per_t,
-            dx,
-            dy,
         })
     }
 
@@ -212,34 +269,6 @@ impl ShadeLod {
         (i, j, (u - i as f64) as f32, (v - j as f64) as f32)
     }
 
-    /// Gradient (dh/dx, dh/dz) of level `lv` (points `2^l` cells apart) at point (`c`, `r`).
-    #[inline]
-    fn gradient(&self, lv: &LodLevel, l: usize, c: usize, r: usize) -> (f32, f32) {
-        let w = lv.w;
-        let h = |c: usize, r: usize| lv.height[r * w + c];
-        let centre = h(c, r);
-        let s = (1u64 << l) as f32;
-        let diff = |lo: Option<f32>, hi: Option<f32>, step: f32| -> f32 {
-            match (lo.filter(|v| !v.is_nan()), hi.filter(|v| !v.is_nan())) {
-                (Some(a), Some(b)) => (b - a) / (2.0 * step),
-                (Some(a), None) if !centre.is_nan() => (centre - a) / step,
-                (None, Some(b)) if !centre.is_nan() => (b - centre) / step,
-                _ => 0.0,
-            }
-        };
-        let gx = diff(
-            (c > 0).then(|| h(c - 1, r)),
-            (c + 1 < w).then(|| h(c + 1, r)),
-            s * self.dx as f32,
-        );
-        let gz = diff(
-            (r > 0).then(|| h(c, r - 1)),
-            (r + 1 < lv.h).then(|| h(c, r + 1)),
-            s * self.dy as f32,
-        );
-        (gx, gz)
-    }
-
     /// The filtered albedo, unit normal and sun visibility (`None` without a sun map) at level
     /// `l` ≥ 1 of the level-0 grid position (`x0`, `z0`).
     #[inline]
@@ -267,9 +296,9 @@ impl ShadeLod {
         let pts = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
         let (mut gx, mut gz) = (0.0f32, 0.0f32);
         for (wk, &(c, r)) in wts.iter().zip(&pts) {
-            let g = self.gradient(lv, l, c, r);
-            gx += wk * g.0;
-            gz += wk * g.1;
+            let g = lv.grad[r * lv.w + c];
+            gx += wk * g[0];
+            gz += wk * g[1];
         }
         let n = normalized(DVec3::new(-f64::from(gx), 1.0, -f64::from(gz))).to_array();
         let sun = (!lv.sun.is_empty()).then(|| {
