@@ -89,25 +89,34 @@ pub struct ListQuery {
     cursor: Option<String>,
 }
 
+impl ListQuery {
+    /// The page asked for, checked: `(limit, cursor)`. Shared by `GET /v1/jobs` and the OGC
+    /// façade's `GET /ogc/jobs`.
+    pub fn page(
+        q: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
+    ) -> Result<(usize, Option<String>), ApiError> {
+        let Query(q) = q.map_err(|e| ApiError::bad_request(e.body_text()))?;
+        let limit = q.limit.unwrap_or(20);
+        if !(1..=100).contains(&limit) {
+            return Err(ApiError::bad_field(
+                "limit",
+                "limit must be between 1 and 100",
+            ));
+        }
+        if q.cursor.as_deref().is_some_and(|c| !is_job_id(c)) {
+            return Err(ApiError::bad_field("cursor", "cursor must be a job id"));
+        }
+        Ok((limit, q.cursor))
+    }
+}
+
 /// `GET /v1/jobs`: recent jobs, newest first.
 pub async fn list(
     State(st): State<AppState>,
     q: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Json<JobList>, ApiError> {
-    let Query(q) = q.map_err(|e| ApiError::bad_request(e.body_text()))?;
-    let limit = q.limit.unwrap_or(20);
-    if !(1..=100).contains(&limit) {
-        return Err(ApiError::bad_field(
-            "limit",
-            "limit must be between 1 and 100",
-        ));
-    }
-    if let Some(c) = &q.cursor {
-        if !is_job_id(c) {
-            return Err(ApiError::bad_field("cursor", "cursor must be a job id"));
-        }
-    }
-    let (jobs, next_cursor) = st.jobs.list(limit, q.cursor.as_deref()).await?;
+    let (limit, cursor) = ListQuery::page(q)?;
+    let (jobs, next_cursor) = st.jobs.list(limit, cursor.as_deref()).await?;
     Ok(Json(JobList {
         jobs: jobs.into_iter().map(JobView::from).collect(),
         next_cursor,

@@ -28,6 +28,7 @@ use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
 use super::extract::ApiPath;
+use super::jobs::ListQuery;
 use super::strict_json::{self, StrictJsonError};
 use super::submit::{submit_inputs, Input};
 use super::AppState;
@@ -566,33 +567,14 @@ pub async fn job(
     Ok(Json(status_info(&find(&st, &id).await?)))
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct JobListQuery {
-    /// Page size, 1–100 (default 20).
-    limit: Option<usize>,
-    /// The last job id of the previous page (the `next` link's).
-    cursor: Option<String>,
-}
-
 /// `GET /ogc/jobs`: recent jobs as `statusInfo`, newest first (the landing page's `job-list`
-/// link; the `job-list` class's filters are not implemented).
+/// link; the `job-list` class's filters are not implemented). Paged as `GET /v1/jobs`.
 pub async fn jobs(
     State(st): State<AppState>,
-    q: Result<Query<JobListQuery>, axum::extract::rejection::QueryRejection>,
+    q: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Json<Value>, ApiError> {
-    let Query(q) = q.map_err(|e| ApiError::bad_request(e.body_text()))?;
-    let limit = q.limit.unwrap_or(20);
-    if !(1..=100).contains(&limit) {
-        return Err(ApiError::bad_field(
-            "limit",
-            "limit must be between 1 and 100",
-        ));
-    }
-    if q.cursor.as_deref().is_some_and(|c| !is_job_id(c)) {
-        return Err(ApiError::bad_field("cursor", "cursor must be a job id"));
-    }
-    let (jobs, next) = st.jobs.list(limit, q.cursor.as_deref()).await?;
+    let (limit, cursor) = ListQuery::page(q)?;
+    let (jobs, next) = st.jobs.list(limit, cursor.as_deref()).await?;
     let mut links = vec![link(
         format!("{PREFIX}/jobs?limit={limit}"),
         "self",

@@ -204,12 +204,7 @@ fn ray_samples_are_bounded_by_the_voxels_crossed() {
         );
     }
     let dims = [8usize, 8, 8];
-    let long = Volume::new(
-        dims,
-        vec![1.0; 512],
-        ([0.0, 0.0, 0.0], [1.0e8, 8.0, 8.0]),
-    )
-    .unwrap();
+    let long = Volume::new(dims, vec![1.0; 512], ([0.0, 0.0, 0.0], [1.0e8, 8.0, 8.0])).unwrap();
     let g = GridFrame::of(&long);
     let bound = MAX_SAMPLES_PER_CROSSING as usize * dims.iter().sum::<usize>() + 1;
     for d in [[0.6, 0.8, 0.0], [0.48, 0.6, 0.64], [1.0, 0.0, 0.0]] {
@@ -229,7 +224,10 @@ fn ray_samples_are_bounded_by_the_voxels_crossed() {
     let camera = Camera::orbit([5.0e7, 4.0, 4.0], 200.0, 12.0, 40.0, 40.0);
     let layers = render_layers(&prep, &camera, 40, 30, &NoControl).unwrap();
     assert!(layers.alpha.iter().all(|a| a.is_finite()));
-    assert!(layers.alpha.iter().any(|&a| a > 0.01), "the long box is seen");
+    assert!(
+        layers.alpha.iter().any(|&a| a > 0.01),
+        "the long box is seen"
+    );
 }
 
 /// Relative RMS error of the radiance and largest alpha error of a 40×30 render of a 20³ blob
