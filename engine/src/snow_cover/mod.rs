@@ -12,6 +12,7 @@ pub mod maps;
 pub mod params;
 pub mod probability;
 pub mod region;
+mod route;
 pub mod run;
 #[doc(hidden)]
 pub mod settle;

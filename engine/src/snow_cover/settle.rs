@@ -285,6 +285,55 @@ impl Settler {
         Ok(rep)
     }
 
+    /// Settle `maps` by the height-ordered sweeps alone (no coarse level, no Jacobi iterations),
+    /// starting from the given cells (`j · nx + i`; the cells that may have an outflow: every
+    /// other cell must have none), for at most `max_iterations` iterations (a sweep, then the
+    /// confirming check). The fallback of the model's routing pass ([`super::route`]).
+    pub(super) fn stabilize_from(
+        &mut self,
+        maps: &mut SnowMaps,
+        repose_deg: f32,
+        cells: &[u32],
+        max_iterations: usize,
+        ctl: &dyn Control,
+    ) -> Result<SettleReport, Canceled> {
+        assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
+        let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
+        let tol = self.tolerance * maps.cell;
+        let mut rep = SettleReport::default();
+        self.dirty.iter_mut().for_each(|a| *a = false);
+        self.dirty_next.iter_mut().for_each(|a| *a = false);
+        self.changed.iter_mut().for_each(|a| *a = false);
+        for &c in cells {
+            let c = c as usize;
+            self.dirty[c] = true;
+            self.changed[(c / self.nx / TILE) * self.tx + (c % self.nx) / TILE] = true;
+        }
+        // Active: the tiles holding a seed (the sweep reads dirty cells of active tiles only).
+        self.active.copy_from_slice(&self.changed);
+        while rep.iterations < max_iterations {
+            ctl.checkpoint()?;
+            rep.iterations += 1;
+            let (moved, lost) = if rep.iterations > 1
+                && !self.any_outflow(maps, t_drop, tol, self.sweep_relaxation)
+            {
+                (0, 0)
+            } else {
+                self.sweep(maps, t_drop, tol, self.sweep_relaxation, ctl)?
+            };
+            rep.moved_units += moved;
+            rep.lost_units += lost;
+            if moved == 0 {
+                rep.converged = true;
+                break;
+            }
+        }
+        let v = maps.unit_volume_m3();
+        rep.moved_m3 = rep.moved_units as f64 * v;
+        rep.lost_m3 = rep.lost_units as f64 * v;
+        Ok(rep)
+    }
+
     /// One Jacobi iteration; returns (moved, lost) units. The outflows of every cell of the active
     /// tiles are computed from the current state (rayon over bands of rows), then applied by a
     /// serial scatter over the cells that have one: integer additions commute, so the result is
@@ -590,13 +639,13 @@ const CHECK_EVERY: usize = 1 << 16;
 /// The sweep's max-heap key of cell-and-layer `idx` with snow surface `surface`: highest surface
 /// first, then the lower index.
 #[inline]
-fn heap_key(surface: f32, idx: usize) -> u64 {
+pub(super) fn heap_key(surface: f32, idx: usize) -> u64 {
     (u64::from(ordered_bits(surface)) << 32) | u64::from(u32::MAX - idx as u32)
 }
 
 /// The cell-and-layer index of a [`heap_key`].
 #[inline]
-fn key_index(key: u64) -> usize {
+pub(super) fn key_index(key: u64) -> usize {
     (u32::MAX - (key & 0xFFFF_FFFF) as u32) as usize
 }
 
@@ -680,7 +729,7 @@ fn mark(dirty: &mut [bool], nx: usize, nz: usize, i: usize, j: usize) {
 
 /// Outflows of cell (i, j) of layer k toward its 4 neighbours, and how much of it is lost.
 #[inline]
-fn outflow(
+pub(super) fn outflow(
     maps: &SnowMaps,
     k: usize,
     i: usize,

@@ -22,6 +22,7 @@ use rayon::prelude::*;
 use super::maps::{capacity_units, SnowMaps, SNOW_UNIT_M};
 use super::probability::{angle_weights, snow_probability, snowfall_directions, Receiver, Wind};
 use super::region::build_snow_maps;
+use super::route::Router;
 use super::settle::{repose_residual, Settler, MODEL_JACOBI_ITERATIONS, MODEL_SWEEP_RELAXATION};
 use crate::geom::mesh::Mesh;
 use crate::{Canceled, Control};
@@ -203,6 +204,7 @@ pub fn simulate(
     let mut settler = Settler::new(&maps);
     settler.jacobi_iterations = MODEL_JACOBI_ITERATIONS;
     settler.sweep_relaxation = MODEL_SWEEP_RELAXATION;
+    let mut router = Router::new(&maps);
     let steps = p.steps.max(1);
     let mut fallen = 0u64;
     let mut lost = 0u64;
@@ -226,16 +228,30 @@ pub fn simulate(
             .snowfall
             .cumulative(p.duration_h * n as f64 / steps as f64);
         fallen += accumulate_between(&mut maps, before, after);
-        let rep = settler.stabilize(
-            &mut maps,
-            p.repose_angle_deg,
-            p.max_stabilize_iterations,
-            ctl,
-        )?;
-        lost += rep.lost_units;
-        report.stabilize_iterations += rep.iterations;
-        report.step_iterations.push(rep.iterations as u32);
-        if !rep.converged {
+        // Erosion and routing (one pass, `super::route`), then the height-ordered sweeps from
+        // the cells it could not settle, if any.
+        let t_drop = maps.cell * p.repose_angle_deg.clamp(0.0, 89.9).to_radians().tan();
+        let tol = settler.tolerance * maps.cell;
+        let routed = router.route(&mut maps, t_drop, tol);
+        lost += routed.lost_units;
+        let (iterations, converged) = if routed.unsettled.is_empty() {
+            (1, true)
+        } else if p.max_stabilize_iterations <= 1 {
+            (1, false)
+        } else {
+            let rep = settler.stabilize_from(
+                &mut maps,
+                p.repose_angle_deg,
+                &routed.unsettled,
+                p.max_stabilize_iterations - 1,
+                ctl,
+            )?;
+            lost += rep.lost_units;
+            (1 + rep.iterations, rep.converged)
+        };
+        report.stabilize_iterations += iterations;
+        report.step_iterations.push(iterations as u32);
+        if !converged {
             report.unconverged_steps += 1;
         }
         on_frame(&maps, n);

@@ -1,0 +1,593 @@
+//! One accumulation step's stabilization in two ordered passes: **erosion, then routing** (our
+//! scheme for the model's time loop; it reaches a state with the paper's repose property,
+//! journal §2.4.1–2.4.2, without the paper's many levelling iterations).
+//!
+//! Why: the height-ordered sweep of [`super::settle`] levels a cell against its neighbours as
+//! they are *now*; when a neighbour below later passes snow on, the cell above is steeper again
+//! and goes back into the queue. On a snow slope at the repose angle every give re-opens the cell
+//! above it, so a parcel arriving at the top of a slope crosses it in many small parts (measured on
+//! the Stanford bunny: 19–71 M visits per step, 72 % of them moving nothing, ~0.25 mm per useful
+//! visit; the cost grew like side⁴; BENCHMARKS.md, "why the bunny's snowfall is slow"). Here each
+//! cell is settled against a **lower bound of its neighbours' final surfaces** instead, so what it
+//! keeps never has to be revisited.
+//!
+//! With `T' = T + SLOPE_TOLERANCE · cell / 2` (T = cell · tan repose; half the tolerance left as a
+//! margin for `f32` rounding) and D = the snow surface after this step's deposit:
+//!
+//! 1. **Erosion** (a Dijkstra pass, lowest surface first). `U = max(base, min(D, min U(n) + T'))`
+//!    over the linked neighbours n that have room (over the scene's edge, `U(n) = base`, so a rim
+//!    cell keeps at most `T'` of snow): the highest surface below D that has the repose property.
+//!    It starts at the cells of D that are too steep and spreads only uphill, to the cells whose
+//!    link leads into a lowered cell, so snow that need not move (a uniform deposit on a slope
+//!    at the repose angle) is not touched. Cost: O(m log m) for the m cells it lowers.
+//! 2. **Routing** (a max-heap on the resting snow surface, highest first, as hydrological flow
+//!    accumulation orders its cells). A cell takes in the snow *in transit* to it, keeps
+//!    `K = min(its snow surface, min U(n) + T')` and passes the rest on, in transit, to the
+//!    neighbours whose resting surface is below K (so they come later), split by
+//!    **water-filling** their resting surfaces (the lowest takes most; none past its ceiling;
+//!    over the scene's edge counts as a neighbour at the cell's base that never fills: what
+//!    the level would put above it is lost). Snow in transit does not raise a cell's surface
+//!    until its turn, so a whole flank's snow runs down in one visit per cell whatever its
+//!    amount (a first version added it to the receiver at once and capped receivers at K:
+//!    on the bunny 60–98 k cells per step found no room and waited). Each cell's final surface
+//!    is at least its U (it keeps at least that, and a receiver only gains until its turn), so
+//!    what a cell kept has at most the slope `T'` toward every neighbour's *final* surface:
+//!    nothing needs revisiting.
+//! 3. **Check**: a cell whose excess found no lower neighbour (snow arriving in a pit, where a
+//!    pile must build up) keeps it for now; the stuck cells get further rounds while rounds
+//!    move snow (their neighbours may have passed their own excess on meanwhile), then the
+//!    cells the routing touched and their neighbours are checked with the sweep's own rule
+//!    ([`super::settle`]'s outflow); any that would still move snow seed the height-ordered
+//!    sweep, which settles them (the paper's levelling) and confirms.
+//!
+//! Mass: integer units throughout ([`super::maps::SNOW_UNIT_M`]); every transfer is exact, so
+//! `fallen = resting + lost` to the unit. Both passes are serial with a total order (surface,
+//! then cell and layer index), so the result does not depend on the thread count; the seed
+//! searches and the check run on rayon. The state reached is *a* fixed point of the paper's rule
+//! (no cell with snow steeper than the repose angle, plus the tolerance), not necessarily the one
+//! the sweep alone reaches: snow arriving at a slope already at the repose angle runs down to its
+//! toe in one visit instead of being levelled over it.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use rayon::prelude::*;
+
+use super::maps::{opposite, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS, SNOW_UNIT_M};
+use super::settle::{heap_key, key_index, outflow};
+
+/// What one [`Router::route`] did.
+#[derive(Debug, Clone, Default)]
+pub(super) struct RouteReport {
+    /// Snow moved between cells (including over the edge), units.
+    pub moved_units: u64,
+    /// Snow lost over the scene's edge, units.
+    pub lost_units: u64,
+    /// Cells (indices `j · nx + i`) that would still move snow by the sweep's rule after the
+    /// routing (the check of the module doc, step 3); sorted.
+    pub unsettled: Vec<u32>,
+    /// Routing rounds run (module doc), and cells left with an excess after the first.
+    pub rounds: usize,
+    pub stuck_first: usize,
+}
+
+/// Most routing rounds per step (module doc, step 3).
+const MAX_ROUNDS: usize = 64;
+
+/// Workspace of the erosion and routing passes for maps of one shape.
+#[derive(Debug, Clone)]
+pub(super) struct Router {
+    nx: usize,
+    nz: usize,
+    nl: usize,
+    /// The eroded snow U, units, per `c · layers + k`.
+    lb: Vec<u32>,
+    /// Per `c · layers + k`: in the routing heap.
+    queued: Vec<bool>,
+    /// Per cell: touched by the routing (or a neighbour of a touched cell), to be checked.
+    check: Vec<bool>,
+    check_list: Vec<u32>,
+    /// The cells the erosion lowered (their snow exceeds U: the routing's seeds).
+    eroded: Vec<u32>,
+    min_heap: BinaryHeap<Reverse<u64>>,
+    max_heap: BinaryHeap<u64>,
+    /// Per `c · layers + k`: snow in transit, given to the cell but not yet resting there (it
+    /// does not raise the cell's surface until the cell's turn).
+    pending: Vec<u32>,
+}
+
+/// `⌊x⌋` as units in `[0, u32::MAX]`.
+#[inline]
+fn units_floor(x: f64) -> u32 {
+    if x.is_nan() || x <= 0.0 {
+        0
+    } else if x >= f64::from(u32::MAX) {
+        u32::MAX
+    } else {
+        x as u32
+    }
+}
+
+impl Router {
+    pub(super) fn new(maps: &SnowMaps) -> Self {
+        let n = maps.nx * maps.nz;
+        let nl = maps.layers.len();
+        Self {
+            nx: maps.nx,
+            nz: maps.nz,
+            nl,
+            lb: vec![0; n * nl],
+            queued: vec![false; n * nl],
+            check: vec![false; n],
+            check_list: Vec::new(),
+            eroded: Vec::new(),
+            min_heap: BinaryHeap::new(),
+            max_heap: BinaryHeap::new(),
+            pending: vec![0; n * nl],
+        }
+    }
+
+    /// The most snow (units) cell-and-layer (c, k) can keep with the repose property `t_prime`
+    /// toward neighbours whose surfaces are given by `lb` (units per `c · layers + k`), skipping
+    /// neighbours full to their ceiling in the *current* state (walls for now, as the sweep's
+    /// rule has it); at most the cell's capacity.
+    #[inline]
+    fn keep_cap(
+        maps: &SnowMaps,
+        lb: &[u32],
+        nl: usize,
+        k: usize,
+        i: usize,
+        j: usize,
+        t_prime: f64,
+    ) -> u32 {
+        let nx = maps.nx;
+        let c = j * nx + i;
+        let l = &maps.layers[k];
+        let bc = f64::from(l.base[c]);
+        let mut cap = l.capacity(c);
+        for d in 0..4 {
+            let v = match l.links[c][d] {
+                LINK_WALL => continue,
+                LINK_LOST => units_floor(t_prime / SNOW_UNIT_M),
+                k2 => {
+                    let (di, dj) = NEIGHBOURS[d];
+                    let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+                    let k2 = usize::from(k2);
+                    let l2 = &maps.layers[k2];
+                    let cap2 = l2.capacity(c2);
+                    if l2.snow[c2] >= cap2 {
+                        continue;
+                    }
+                    let s2 = lb[c2 * nl + k2].min(cap2);
+                    units_floor(
+                        (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime)
+                            / SNOW_UNIT_M,
+                    )
+                }
+            };
+            cap = cap.min(v);
+        }
+        cap
+    }
+
+    #[inline]
+    fn surface_key(maps: &SnowMaps, k: usize, c: usize, units: u32, idx: usize) -> u64 {
+        let l = &maps.layers[k];
+        let s = (f64::from(l.base[c]) + f64::from(units.min(l.capacity(c))) * SNOW_UNIT_M) as f32;
+        heap_key(s, idx)
+    }
+
+    /// Erosion then routing (module doc) with repose drop `t_drop` and tolerance `tol` (metres).
+    pub(super) fn route(&mut self, maps: &mut SnowMaps, t_drop: f32, tol: f32) -> RouteReport {
+        assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.nl);
+        let (nx, nz, nl) = (self.nx, self.nz, self.nl);
+        let t_prime = f64::from(t_drop) + 0.5 * f64::from(tol);
+        let mut rep = RouteReport::default();
+
+        // U starts as D.
+        for (k, l) in maps.layers.iter().enumerate() {
+            for (c, &s) in l.snow.iter().enumerate() {
+                self.lb[c * nl + k] = s;
+            }
+        }
+
+        // 1. Erosion. Seeds: the cells of D that are too steep (rayon over rows, in order).
+        let seeds: Vec<(u32, u32)> = {
+            let maps_ref: &SnowMaps = maps;
+            let lb = &self.lb;
+            (0..nz)
+                .into_par_iter()
+                .flat_map_iter(|j| {
+                    let mut row = Vec::new();
+                    for i in 0..nx {
+                        let c = j * nx + i;
+                        for k in 0..nl {
+                            let s = maps_ref.layers[k].snow[c];
+                            if s == 0 {
+                                continue;
+                            }
+                            let cap = Self::keep_cap(maps_ref, lb, nl, k, i, j, t_prime);
+                            if s > cap {
+                                row.push(((c * nl + k) as u32, cap));
+                            }
+                        }
+                    }
+                    row
+                })
+                .collect()
+        };
+        self.eroded.clear();
+        self.min_heap.clear();
+        for &(idx, cap) in &seeds {
+            let idx = idx as usize;
+            self.lb[idx] = cap;
+            self.eroded.push(idx as u32);
+            let (c, k) = (idx / nl, idx % nl);
+            self.min_heap
+                .push(Reverse(Self::surface_key(maps, k, c, cap, idx)));
+        }
+        while let Some(Reverse(key)) = self.min_heap.pop() {
+            let idx = key_index(key);
+            let (c, k) = (idx / nl, idx % nl);
+            if Self::surface_key(maps, k, c, self.lb[idx], idx) != key {
+                continue; // stale
+            }
+            let l = &maps.layers[k];
+            if l.snow[c] >= l.capacity(c) {
+                // Full to its ceiling: a wall for its neighbours for now (no constraint).
+                continue;
+            }
+            let (i, j) = (c % nx, c / nx);
+            let top = f64::from(l.base[c])
+                + f64::from(self.lb[idx].min(l.capacity(c))) * SNOW_UNIT_M
+                + t_prime;
+            for d in 0..4 {
+                let (di, dj) = NEIGHBOURS[d];
+                let (i2, j2) = (i as isize + di, j as isize + dj);
+                if i2 < 0 || j2 < 0 || i2 as usize >= nx || j2 as usize >= nz {
+                    continue;
+                }
+                let c2 = j2 as usize * nx + i2 as usize;
+                let back = opposite(d);
+                for k3 in 0..nl {
+                    let l3 = &maps.layers[k3];
+                    let idx3 = c2 * nl + k3;
+                    if self.lb[idx3] == 0 || usize::from(l3.links[c2][back]) != k {
+                        continue;
+                    }
+                    let cand = units_floor((top - f64::from(l3.base[c2])) / SNOW_UNIT_M);
+                    if cand < self.lb[idx3] {
+                        if self.lb[idx3] == l3.snow[c2] {
+                            self.eroded.push(idx3 as u32);
+                        }
+                        self.lb[idx3] = cand;
+                        self.min_heap
+                            .push(Reverse(Self::surface_key(maps, k3, c2, cand, idx3)));
+                    }
+                }
+            }
+        }
+
+        // 2. Routing, highest surface first.
+        self.max_heap.clear();
+        for n in 0..self.eroded.len() {
+            let idx = self.eroded[n] as usize;
+            let (c, k) = (idx / nl, idx % nl);
+            if self.queued[idx] || maps.layers[k].snow[c] <= self.lb[idx] {
+                continue;
+            }
+            self.queued[idx] = true;
+            let s = maps.layers[k].snow[c];
+            self.max_heap.push(Self::surface_key(maps, k, c, s, idx));
+        }
+        self.check_list.clear();
+        let mut stuck: Vec<u32> = Vec::new();
+        let mut rounds = 0;
+        let mut stuck_first = 0;
+        loop {
+            let moved_before = rep.moved_units;
+            while let Some(key) = self.max_heap.pop() {
+                let idx = key_index(key);
+                self.queued[idx] = false;
+                let (c, k) = (idx / nl, idx % nl);
+                let (i, j) = (c % nx, c / nx);
+                // The snow in transit arrives (it rests here from now on, or moves on).
+                let s = maps.layers[k].snow[c].saturating_add(self.pending[idx]);
+                maps.layers[k].snow[c] = s;
+                self.pending[idx] = 0;
+                let cap = Self::keep_cap(maps, &self.lb, nl, k, i, j, t_prime);
+                if s <= cap {
+                    // It keeps all it has, for good (a lower bound of its final snow).
+                    self.lb[idx] = self.lb[idx].max(s);
+                    continue;
+                }
+                let excess = s - cap;
+                let bc = f64::from(maps.layers[k].base[c]);
+                let top = bc + f64::from(cap) * SNOW_UNIT_M;
+                // Candidates: the neighbours whose resting surface is below K (so they come
+                // later): (idx2, cell2, resting surface, ceiling, room in units, snow in transit
+                // included); over the edge: a sink at the cell's base.
+                let mut cands: [(usize, usize, f64, f64, u32); 4] = [(0, 0, 0.0, 0.0, 0); 4];
+                let mut n = 0;
+                let mut sink: Option<f64> = None;
+                let links = maps.layers[k].links[c];
+                for d in 0..4 {
+                    match links[d] {
+                        LINK_WALL => {}
+                        LINK_LOST => sink = Some(bc),
+                        k2 => {
+                            let (di, dj) = NEIGHBOURS[d];
+                            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+                            let k2 = usize::from(k2);
+                            let l2 = &maps.layers[k2];
+                            let idx2 = c2 * nl + k2;
+                            let (s2, cap2) = (l2.snow[c2], l2.capacity(c2));
+                            let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
+                            if s2 >= cap2 || room == 0 {
+                                continue;
+                            }
+                            let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
+                            if h < top {
+                                cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+                let cands = &mut cands[..n];
+                // Units that raising to level `lev` gives each candidate.
+                let give_at = |lev: f64, m: &(usize, usize, f64, f64, u32)| -> u32 {
+                    if lev <= m.2 {
+                        0
+                    } else {
+                        units_floor((lev - m.2) / SNOW_UNIT_M).min(m.4)
+                    }
+                };
+                let total_at =
+                    |lev: f64| -> u64 { cands.iter().map(|m| u64::from(give_at(lev, m))).sum() };
+                let e = u64::from(excess);
+                // The split: water-filling the candidates' resting surfaces to the level the excess
+                // needs (above K too: the snow is in transit, not resting), or to the cell's base
+                // when it has an edge (the sink takes the rest).
+                let hi = sink.unwrap_or_else(|| {
+                    cands.iter().map(|m| m.2).fold(f64::NEG_INFINITY, f64::max)
+                        + e as f64 * SNOW_UNIT_M
+                        + 1.0
+                });
+                let lev = if sink.is_some() && total_at(hi) <= e {
+                    hi
+                } else {
+                    // Closed form (no ceiling reached): the r lowest surfaces h₁ ≤ … ≤ h_r at
+                    // a common level ℓ = (Σ h + e·unit) / r, the first r for which ℓ ≤ h_{r+1}.
+                    let mut hs = [0f64; 4];
+                    for (h, m) in hs.iter_mut().zip(cands.iter()) {
+                        *h = m.2;
+                    }
+                    let hs = &mut hs[..cands.len()];
+                    hs.sort_unstable_by(f64::total_cmp);
+                    let mut lev = hi;
+                    let mut sum = 0.0;
+                    for r in 0..hs.len() {
+                        sum += hs[r];
+                        let l = (sum + e as f64 * SNOW_UNIT_M) / (r + 1) as f64;
+                        if r + 1 == hs.len() || l <= hs[r + 1] {
+                            lev = l;
+                            break;
+                        }
+                    }
+                    lev.min(hi)
+                };
+                let mut gives = [0u32; 4];
+                let mut given = 0u64;
+                for (g, m) in gives.iter_mut().zip(cands.iter()) {
+                    *g = give_at(lev, m);
+                    given += u64::from(*g);
+                }
+                // Float rounding may overshoot by a unit or so: take it back from the largest.
+                while given > e {
+                    if let Some(g) = gives.iter_mut().max() {
+                        *g -= 1;
+                        given -= 1;
+                    }
+                }
+                let mut left = e - given;
+                if sink.is_some() {
+                    // The level reached the cell's base: the rest goes over the edge.
+                    rep.lost_units += left;
+                    rep.moved_units += left;
+                    left = 0;
+                }
+                // The rounding remainder (a few units): one each to the candidates with room left,
+                // in the order of the links.
+                while left > 0 {
+                    let open = gives
+                        .iter()
+                        .zip(cands.iter())
+                        .filter(|(g, m)| **g < m.4)
+                        .count();
+                    if open == 0 {
+                        break;
+                    }
+                    let each = left.div_ceil(open as u64);
+                    for (g, m) in gives.iter_mut().zip(cands.iter()) {
+                        let add = each.min(left).min(u64::from(m.4 - *g)) as u32;
+                        *g += add;
+                        left -= u64::from(add);
+                        given += u64::from(add);
+                    }
+                }
+                // A pit (no neighbour below K could take it all): level the rest with the
+                // neighbours below the cell's full surface (the paper's levelling, to a common
+                // level), in transit too; the cell keeps its share for now and tries again in
+                // the next round, when the pile around it has grown (and with it U there).
+                let mut extra: [(usize, usize, u32); 4] = [(0, 0, 0); 4];
+                let mut n_extra = 0;
+                if left > 0 && sink.is_none() {
+                    let hfull = bc + f64::from(s.min(maps.layers[k].capacity(c))) * SNOW_UNIT_M;
+                    let mut c2s: [(usize, usize, f64, u32); 4] = [(0, 0, 0.0, 0); 4];
+                    for d in 0..4 {
+                        let k2 = links[d];
+                        if k2 == LINK_WALL || k2 == LINK_LOST {
+                            continue;
+                        }
+                        let (di, dj) = NEIGHBOURS[d];
+                        let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+                        let k2 = usize::from(k2);
+                        let idx2 = c2 * nl + k2;
+                        let l2 = &maps.layers[k2];
+                        let already: u32 = cands
+                            .iter()
+                            .zip(gives.iter())
+                            .filter(|(m, _)| m.0 == idx2)
+                            .map(|(_, g)| *g)
+                            .sum();
+                        let held = l2.snow[c2]
+                            .saturating_add(self.pending[idx2])
+                            .saturating_add(already);
+                        let room = l2.capacity(c2).saturating_sub(held);
+                        let h = f64::from(l2.base[c2]) + f64::from(held) * SNOW_UNIT_M;
+                        if room > 0 && h < hfull {
+                            c2s[n_extra] = (idx2, c2, h, room);
+                            n_extra += 1;
+                        }
+                    }
+                    let c2s = &c2s[..n_extra];
+                    let share = |lev: f64| -> (u64, [u32; 4]) {
+                        let mut g = [0u32; 4];
+                        let mut t = 0u64;
+                        for (x, m) in g.iter_mut().zip(c2s.iter()) {
+                            if lev > m.2 {
+                                *x = units_floor((lev - m.2) / SNOW_UNIT_M).min(m.3);
+                                t += u64::from(*x);
+                            }
+                        }
+                        (t, g)
+                    };
+                    // Level ℓ in [K, full surface]: the receivers up to ℓ, the cell keeps what
+                    // lies between K and ℓ.
+                    let own = |lev: f64| units_floor((lev - top) / SNOW_UNIT_M) as u64;
+                    let (mut lo, mut up) = (top, hfull);
+                    for _ in 0..60 {
+                        let mid = 0.5 * (lo + up);
+                        if share(mid).0 + own(mid) <= left {
+                            lo = mid;
+                        } else {
+                            up = mid;
+                        }
+                    }
+                    let (t, g) = share(lo);
+                    let t = t.min(left);
+                    let mut rest = t;
+                    for ((x, m), slot) in g.iter().zip(c2s.iter()).zip(extra.iter_mut()) {
+                        let x = u64::from(*x).min(rest) as u32;
+                        rest -= u64::from(x);
+                        *slot = (m.0, m.1, x);
+                    }
+                    left -= t;
+                    given += t;
+                }
+                if left > 0 {
+                    stuck.push(idx as u32);
+                }
+                let gone = (e - left) as u32;
+                // What it keeps (up to K) it keeps for good: a lower bound of its final snow.
+                self.lb[idx] = self.lb[idx].max(cap);
+                if gone == 0 {
+                    continue;
+                }
+                maps.layers[k].snow[c] -= gone;
+                rep.moved_units += given;
+                Self::mark(&mut self.check, &mut self.check_list, c);
+                let tier2 = extra.iter().filter(|x| x.2 > 0).map(|x| (x.2, x.0, x.1));
+                for (g, idx2, c2) in gives
+                    .iter()
+                    .zip(cands.iter())
+                    .map(|(g, m)| (*g, m.0, m.1))
+                    .chain(tier2)
+                {
+                    let g = &g;
+                    if *g == 0 {
+                        continue;
+                    }
+                    let k2 = idx2 % nl;
+                    self.pending[idx2] += *g;
+                    Self::mark(&mut self.check, &mut self.check_list, c2);
+                    if !self.queued[idx2] {
+                        self.queued[idx2] = true;
+                        let s2 = maps.layers[k2].snow[c2];
+                        self.max_heap
+                            .push(Self::surface_key(maps, k2, c2, s2, idx2));
+                    }
+                }
+            }
+
+            // A cell whose excess found no room may have been waiting on a lower neighbour that had
+            // an excess of its own (not yet passed on when the cell's turn came): another round
+            // from the stuck cells, as long as rounds move snow.
+            rounds += 1;
+            if rounds == 1 {
+                stuck_first = stuck.len();
+            }
+            if stuck.is_empty() || rep.moved_units == moved_before || rounds >= MAX_ROUNDS {
+                break;
+            }
+            for idx in stuck.drain(..) {
+                let idx = idx as usize;
+                if !self.queued[idx] {
+                    self.queued[idx] = true;
+                    let (c, k) = (idx / nl, idx % nl);
+                    let s = maps.layers[k].snow[c];
+                    self.max_heap.push(Self::surface_key(maps, k, c, s, idx));
+                }
+            }
+        }
+        rep.rounds = rounds;
+        rep.stuck_first = stuck_first;
+
+        // 3. Check the touched cells and their neighbours with the sweep's rule.
+        let touched = std::mem::take(&mut self.check_list);
+        for &c in &touched {
+            let c = c as usize;
+            let (i, j) = (c % nx, c / nx);
+            for d in 0..4 {
+                if let Some(c2) = maps.neighbour(i, j, d) {
+                    Self::mark(&mut self.check, &mut self.check_list, c2);
+                }
+            }
+        }
+        let mut all = touched;
+        all.append(&mut self.check_list);
+        for &c in &all {
+            self.check[c as usize] = false;
+        }
+        all.sort_unstable();
+        all.dedup();
+        let maps_ref: &SnowMaps = maps;
+        rep.unsettled = all
+            .par_iter()
+            .copied()
+            .filter(|&c| {
+                let c = c as usize;
+                let (i, j) = (c % nx, c / nx);
+                (0..nl).any(|k| {
+                    maps_ref.layers[k].snow[c] != 0 && {
+                        let (o, _) = outflow(maps_ref, k, i, j, t_drop, tol, 1.0);
+                        o.iter().any(|&v| v != 0)
+                    }
+                })
+            })
+            .collect();
+        all.clear();
+        self.check_list = all;
+        rep
+    }
+
+    #[inline]
+    fn mark(check: &mut [bool], list: &mut Vec<u32>, c: usize) {
+        if !check[c] {
+            check[c] = true;
+            list.push(c as u32);
+        }
+    }
+}
