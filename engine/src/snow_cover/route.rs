@@ -146,8 +146,8 @@ impl Router {
         let l = &maps.layers[k];
         let bc = f64::from(l.base[c]);
         let mut cap = l.capacity(c);
-        for d in 0..4 {
-            let v = match l.links[c][d] {
+        for (d, &link) in l.links[c].iter().enumerate() {
+            let v = match link {
                 LINK_WALL => continue,
                 LINK_LOST => units_floor(t_prime / SNOW_UNIT_M),
                 k2 => {
@@ -242,8 +242,7 @@ impl Router {
             let top = f64::from(l.base[c])
                 + f64::from(self.lb[idx].min(l.capacity(c))) * SNOW_UNIT_M
                 + t_prime;
-            for d in 0..4 {
-                let (di, dj) = NEIGHBOURS[d];
+            for (d, &(di, dj)) in NEIGHBOURS.iter().enumerate() {
                 let (i2, j2) = (i as isize + di, j as isize + dj);
                 if i2 < 0 || j2 < 0 || i2 as usize >= nx || j2 as usize >= nz {
                     continue;
