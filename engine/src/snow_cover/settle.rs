@@ -54,7 +54,9 @@
 //! into the giver (their drop toward it grew; a drop toward a receiver only shrank). So when the
 //! heap is empty nothing can move: one sweep settles the step and the next (over the cells it
 //! touched) confirms it; a default run takes 2 Jacobi iterations + 2 sweeps per step on every
-//! mesh measured (BENCHMARKS.md, "Snow cover, convergence on curved meshes"). Termination: a move
+//! mesh measured (BENCHMARKS.md, "Snow cover, convergence on curved meshes").
+//! Since session 15 the model's time loop settles each step with the erosion and routing of
+//! `route.rs` first and calls these sweeps only from the cells that leaves unsettled. Termination: a move
 //! takes snow from a higher surface to a lower one and less than the drop, so Σ mass × height
 //! falls by at least one unit × `T` per move. The sweeps are serial and so thread-count
 //! independent (the order is a total order: surface, then cell and layer index).

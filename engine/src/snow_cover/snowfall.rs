@@ -4,8 +4,9 @@
 //! fresh snow per hour on open ground. M is a constant or a schedule `[[hour, rate], …]`, read as
 //! piecewise constant: each rate holds from its hour until the next entry's hour (the last until
 //! the end; zero before the first). The `duration_h` hours are cut into `steps` equal increments;
-//! each step deposits `P · ΔM` on every cell and stabilizes ([`super::settle`]), as the paper does
-//! per animation frame.
+//! each step deposits `P · ΔM` on every cell and stabilizes (erosion and routing,
+//! [`super::route`], then [`super::settle`]'s sweeps where needed), as the paper does per animation
+//! frame.
 //!
 //! Deposits are integers ([`SNOW_UNIT_M`]): step n gives a cell `round(P·C(tₙ)/u) −
 //! round(P·C(tₙ₋₁)/u)` units (C = ∫M), so while P is fixed the rounding telescopes and the total is
