@@ -153,7 +153,7 @@ pub fn shape_decides(e: [f32; 3], n: [f32; 3], n_up_there: f32) -> Option<(bool,
     }
     let mut sorted = e;
     sorted.sort_by(f32::total_cmp);
-    if !(sorted[1] > 0.0) || sorted[0] >= SHEET_RATIO * sorted[1] {
+    if sorted[1].is_nan() || sorted[1] <= 0.0 || sorted[0] >= SHEET_RATIO * sorted[1] {
         return None;
     }
     let why = format!(
