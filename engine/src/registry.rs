@@ -495,10 +495,12 @@ pub fn decode_parts(
                 snow_cover::run::decode(bytes, filename, named_inputs, &p, limits).map_err(main)?;
             Ok(Job::SnowCover { params: p, mesh })
         }
-        PipelineParams::Cloud(p) => {
+        PipelineParams::Cloud(mut p) => {
             let bounds = p.bounds().map(|(lo, hi)| [lo, hi]);
-            let volume =
+            let mut volume =
                 cloud::input::decode(bytes, filename, bounds, p.dims(), limits).map_err(main)?;
+            // The scan's background out before κ is chosen ([`cloud::floor`]).
+            p.state = p.state.with_floor_applied(&mut volume);
             let ambient = cloud::input::ambient_field(named_inputs, &volume).map_err(main)?;
             Ok(Job::Cloud {
                 params: p,
@@ -522,8 +524,11 @@ pub fn decode_parts(
                     }
                 }
             }
-            let volume =
+            let mut p = p;
+            let mut volume =
                 cloud::input::decode(bytes, filename, p.bounds, p.dims, limits).map_err(main)?;
+            // The base version's floor (chosen again, identically, when it left it open).
+            p.base = p.base.with_floor_applied(&mut volume);
             let ambient = cloud::input::ambient_field(named_inputs, &volume).map_err(main)?;
             Ok(Job::CloudEdit {
                 params: p,
@@ -551,8 +556,13 @@ pub fn describe(job: &Job) -> serde_json::Value {
                 "voxel_size": volume.voxel_size(),
                 "density": {"min": min, "max": max, "mean": mean},
             });
-            // κ as the render's state resolves it (chosen from the volume when not given).
+            // κ as the render's state resolves it (chosen from the volume when not given), and
+            // the density floor the decoder took out ([`cloud::floor`]).
             if let Job::Cloud { params, .. } = job {
+                info["density_floor"] = serde_json::json!(params.state.density_floor);
+                if let Some(c) = &params.state.density_floor_auto {
+                    info["density_floor_auto"] = serde_json::to_value(c).unwrap_or_default();
+                }
                 let s = params.state.resolved(volume);
                 info["kappa"] = serde_json::json!(s.kappa);
                 if let Some(c) = s.kappa_auto {

@@ -141,6 +141,18 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
             state.insert(k, v);
         }
     }
+    // The density floor left open: the one the decoder chose and took out
+    // ([`phenomena_engine::cloud::floor`]), stated with its rule, so that every version renders
+    // the same volume (and a version's `layers.bin` identity, which holds the floor, matches
+    // its edits' base).
+    if state.get("density_floor").is_none_or(Value::is_null) {
+        if let Some(f) = info.get("density_floor").filter(|f| f.is_number()) {
+            state.insert("density_floor".into(), f.clone());
+            if let Some(c) = info.get("density_floor_auto") {
+                state.insert("density_floor_auto".into(), c.clone());
+            }
+        }
+    }
     // κ left open: the one the decoder chose from the volume ([`describe_input`]), stated with
     // its rule, so every version of the scene renders with it.
     if state.get("kappa").is_none_or(Value::is_null) {

@@ -452,6 +452,11 @@ async fn a_mask_scene_chooses_its_kappa_and_tells_its_refusals_apart() {
     assert!(kappa > 0.0 && kappa < 1.0, "{v1}");
     assert_eq!(scene["info"]["kappa"], v1["kappa"]);
     assert_eq!(v1["kappa_auto"]["optical_depth"], json!(4.0));
+    // The density floor the decoder chose (a mask's empty background: 0) is the version's too,
+    // so its renders' layers.bin identity matches its edits' base.
+    assert_eq!(v1["density_floor"], json!(0.0), "{v1}");
+    assert_eq!(scene["info"]["density_floor"], v1["density_floor"]);
+    assert!(v1["density_floor_auto"]["rule"].is_string(), "{v1}");
 
     // Paint on the sky: "misses the cloud".
     let v = edit(

@@ -301,12 +301,15 @@ fn every_parameter_is_documented_with_its_default() {
         // Accepted on the wire but resolved into other fields (`sweep` is a separate output;
         // the sun's angles become `sun_direction`), or absent from the resolved defaults
         // (`kappa_auto` exists only beside a κ chosen from the volume: the defaults leave κ
-        // unchosen until a volume is decoded).
+        // unchosen until a volume is decoded; so do `density_floor` and its `density_floor_auto`,
+        // left out of the resolved parameters until a volume is decoded).
         let wire_only = [
             "sweep",
             "sun_azimuth_deg",
             "sun_elevation_deg",
             "kappa_auto",
+            "density_floor",
+            "density_floor_auto",
         ];
         for name in props.keys() {
             if !wire_only.contains(&name.as_str()) {

@@ -8,7 +8,7 @@
 //! `layers.bin` stores them beside a render so that a later sun-colour edit at the same camera
 //! reads them instead of marching (the "when the render at that camera exists"). The
 //! blob carries the identity of what it depends on ([`identity`]: the view and the state
-//! fields other than the sun colour and background); a reader uses it only when the identity
+//! fields other than the sun colour and background, the density floor included); a reader uses it only when the identity
 //! equals the edit's. The volume and the ambient field are not in the identity: the caller
 //! pairs a blob only with the scene version it was rendered from.
 //!
@@ -141,6 +141,12 @@ struct Identity<'a> {
     height: u32,
     camera: &'a CameraSpec,
     kappa: Option<f64>,
+    /// The density floor taken out of the volume before the render ([`super::floor`]): the
+    /// same volume with another floor gives other layers. Left out when the state leaves it
+    /// open (then the identity is what it was before the floor existed, and never equals that
+    /// of a render, whose state always has the floor resolved).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    density_floor: Option<f64>,
     sun_direction: [f64; 3],
     ambient: [f64; 3],
     ambient_scale: f64,
@@ -166,6 +172,7 @@ pub fn identity(view: &View, state: &CloudState) -> String {
         height: view.height,
         camera: &view.camera,
         kappa: state.kappa,
+        density_floor: state.density_floor,
         sun_direction: state.sun_direction,
         ambient: state.ambient,
         ambient_scale: state.ambient_scale,

@@ -1,6 +1,7 @@
 //! Clouds: volume rendering and the three intuitive editing modes (SPEC §3; Iwasaki, Dobashi and
 //! Yamamoto, "cloud volume editing").
 //!
+//! - [`floor`]: the default density floor that takes a scan's noisy background out.
 //! - [`state`]: a version's parameters ([`CloudState`], `state.json`) and the per-voxel ambient
 //!   field ([`AmbientField`]).
 //! - [`light`]: the sun transmittance on the grid, once per light direction (sheared line sweep).
@@ -11,6 +12,7 @@
 
 pub mod edit;
 pub mod fastexp;
+pub mod floor;
 pub mod grid;
 pub mod input;
 pub mod kappa;

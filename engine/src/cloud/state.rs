@@ -7,6 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::floor::{self, FloorChoice};
 use super::kappa::{self, KappaChoice};
 use super::multiple::Scattering;
 use crate::geom::sun_direction as sun_from_angles;
@@ -28,6 +29,18 @@ pub struct CloudState {
     /// Informational: carried with `kappa`, dropped when κ is given anew. Default null.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kappa_auto: Option<KappaChoice>,
+    /// Density floor taken out of every voxel before rendering (ρ ← max(0, ρ − floor)), in the
+    /// volume's own density units, ≥ 0; 0 = none. Default null (left out): chosen from the
+    /// volume ([`super::floor`]): a scan's noisy background (the level on the box's faces, if
+    /// well below the object) is taken out, an empty background or a crop gives 0; the chosen
+    /// value is written here and the rule in `density_floor_auto`. An explicit value wins.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density_floor: Option<f64>,
+    /// How the floor was chosen when it was chosen from the volume ([`FloorChoice`]: the rule,
+    /// the faces' median and spread, Otsu's threshold, the object's mean); informational, carried
+    /// with `density_floor`, dropped when the floor is given anew. Default null (left out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density_floor_auto: Option<FloorChoice>,
     /// Unit vector toward the sun, world frame (X east, Y up, Z south). Default: azimuth 150°,
     /// elevation 35° (`sun_azimuth_deg`/`sun_elevation_deg` are accepted on the wire instead).
     pub sun_direction: [f64; 3],
@@ -74,6 +87,8 @@ impl Default for CloudState {
         Self {
             kappa: None,
             kappa_auto: None,
+            density_floor: None,
+            density_floor_auto: None,
             sun_direction: sun_from_angles(150.0, 35.0),
             sun_color: [1.0, 0.97, 0.92],
             ambient: [0.25, 0.30, 0.40],
@@ -93,6 +108,8 @@ impl Default for CloudState {
 pub(crate) struct WireState {
     pub kappa: Option<f64>,
     pub kappa_auto: Option<KappaChoice>,
+    pub density_floor: Option<f64>,
+    pub density_floor_auto: Option<FloorChoice>,
     pub sun_direction: Option<[f64; 3]>,
     pub sun_azimuth_deg: Option<f64>,
     pub sun_elevation_deg: Option<f64>,
@@ -111,6 +128,8 @@ pub(crate) struct WireState {
 pub(crate) const STATE_FIELDS: &[&str] = &[
     "kappa",
     "kappa_auto",
+    "density_floor",
+    "density_floor_auto",
     "sun_direction",
     "sun_azimuth_deg",
     "sun_elevation_deg",
@@ -179,10 +198,16 @@ impl CloudState {
             Some(k) => Some(range("kappa", Some(k), k, 0.0, 10_000.0)?),
             None => None,
         };
+        let density_floor = match w.density_floor {
+            Some(f) => Some(range("density_floor", Some(f), f, 0.0, 1e30)?),
+            None => None,
+        };
         Ok(Self {
             kappa,
             // A statement about a κ that was chosen: meaningless without that κ.
             kappa_auto: w.kappa_auto.filter(|_| kappa.is_some()),
+            density_floor,
+            density_floor_auto: w.density_floor_auto.filter(|_| density_floor.is_some()),
             sun_direction,
             sun_color: color3("sun_color", w.sun_color, d.sun_color)?,
             ambient: color3("ambient", w.ambient, d.ambient)?,
@@ -199,6 +224,25 @@ impl CloudState {
             scattering: w.scattering.unwrap_or_default(),
             albedo: range("albedo", w.albedo, d.albedo, 0.0, 1.0)?,
         })
+    }
+
+    /// Takes the density floor out of `volume` (chosen from it when the state leaves it open,
+    /// [`super::floor`]) and returns the state with the floor resolved and, when chosen, the
+    /// choice stated. Call once, on the decoded volume, before κ is chosen or anything rendered.
+    pub fn with_floor_applied(&self, volume: &mut Volume) -> Self {
+        let (f, choice) = match self.density_floor {
+            Some(f) => (f, self.density_floor_auto.clone()),
+            None => {
+                let (f, c) = floor::choose(volume);
+                (f, Some(c))
+            }
+        };
+        floor::apply(volume, f);
+        Self {
+            density_floor: Some(f),
+            density_floor_auto: choice,
+            ..self.clone()
+        }
     }
 
     /// κ, chosen from `volume` when the state leaves it open ([`super::kappa::choose`]).

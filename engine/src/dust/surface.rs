@@ -16,9 +16,11 @@
 //! facing down. So the faces are oriented per connected piece (triangles joined by shared
 //! vertices) before anything else ([`flipped_triangles`]): a *closed* piece (every edge used by
 //! two triangles) keeps its winding unless its signed volume is negative (wound inside out); an
-//! *open* piece (a sheet: a floor, a leaf) has no inside, so dust lies on the side that faces the
-//! dust source more — it is flipped when Σ area·(n·U) < 0. Our reading; a closed piece's
-//! underside still gets no dust.
+//! *open* piece that is a sheet (a floor, a leaf: its area-weighted mean normal at least
+//! [`SHEET_MEAN_NORMAL`] long) has no inside, so dust lies on the side that faces the dust source
+//! more — it is flipped when Σ area·(n·U) < 0; an open piece that encloses space (a scanned shell
+//! with a few holes, a body without its base) is oriented by its signed volume about its own
+//! centre, like a closed one. Our reading; a closed piece's underside still gets no dust.
 //!
 //! **Refined.** D and the exposure live on the vertices, so a floor made of one quad would carry
 //! one value per corner and could not be thinner under a table. [`refine`] splits edges longer
@@ -39,6 +41,14 @@ use crate::geom::Mesh;
 
 /// Faces meeting at a vertex at less than this angle share its normal.
 pub const CREASE_DEG: f32 = 45.0;
+
+/// An open piece is a sheet (oriented by the side facing the dust source) when its mean unit
+/// normal, area-weighted, is at least this long; an open piece below it encloses space (a shell
+/// with holes, a body without its base: Σ area·n is the missing part's) and is oriented by its
+/// signed volume like a closed one. A turbine blade scanned with a few holes (0.01) was taken
+/// for a sheet and turned upside down by the facing rule (its underside is 1.6 % larger than
+/// its top), so its top got no dust.
+pub const SHEET_MEAN_NORMAL: f64 = 0.5;
 
 /// [`refine`] splits edges longer than the bounding-box diagonal / this.
 pub const EDGES_PER_DIAGONAL: f32 = 48.0;
@@ -148,21 +158,51 @@ pub fn flipped_triangles(mesh: &Mesh, u: [f32; 3]) -> Vec<bool> {
             open[r as usize] = true;
         }
     }
-    let mut volume = vec![0.0f64; nv];
-    let mut facing = vec![0.0f64; nv];
+    // Per piece: a reference point (the mean of its triangles' corners), so that the signed
+    // volume of a piece with a hole does not depend on where the file's origin is.
+    let mut centre = vec![[0.0f64; 3]; nv];
+    let mut corners = vec![0u64; nv];
     for (ti, t) in mesh.triangles.iter().enumerate() {
         let r = find(&mut parent, t[0]) as usize;
-        let [a, b, c] = mesh.corners(ti).map(|p| p.map(f64::from));
+        for p in mesh.corners(ti) {
+            for k in 0..3 {
+                centre[r][k] += f64::from(p[k]);
+            }
+        }
+        corners[r] += 3;
+    }
+    for (c, &n) in centre.iter_mut().zip(&corners) {
+        if n > 0 {
+            *c = c.map(|v| v / n as f64);
+        }
+    }
+    let mut volume = vec![0.0f64; nv];
+    let mut facing = vec![0.0f64; nv];
+    let mut normal_sum = vec![[0.0f64; 3]; nv];
+    let mut area = vec![0.0f64; nv];
+    for (ti, t) in mesh.triangles.iter().enumerate() {
+        let r = find(&mut parent, t[0]) as usize;
+        let o = centre[r];
+        let [a, b, c] = mesh
+            .corners(ti)
+            .map(|p| [0, 1, 2].map(|k| f64::from(p[k]) - o[k]));
         volume[r] += a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
             + a[2] * (b[0] * c[1] - b[1] * c[0]);
-        let f = mesh.face_normal(ti);
-        facing[r] += f64::from(f[0] * u[0] + f[1] * u[1] + f[2] * u[2]);
+        let f = mesh.face_normal(ti).map(f64::from);
+        facing[r] += f[0] * f64::from(u[0]) + f[1] * f64::from(u[1]) + f[2] * f64::from(u[2]);
+        for k in 0..3 {
+            normal_sum[r][k] += f[k];
+        }
+        area[r] += (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
     }
     mesh.triangles
         .iter()
         .map(|t| {
             let r = find(&mut parent, t[0]) as usize;
-            if open[r] {
+            let n = normal_sum[r];
+            let sheet =
+                (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() >= SHEET_MEAN_NORMAL * area[r];
+            if open[r] && sheet {
                 facing[r] < 0.0
             } else {
                 volume[r] < 0.0

@@ -47,7 +47,7 @@ mod stl;
 pub mod texture;
 mod upright;
 
-pub use upright::{decode_upright, other_up_reason, support_share};
+pub use upright::{decode_upright, other_up_reason, shape_decides, support_share};
 
 use crate::error::InputError;
 use crate::geom::mesh::{Mesh, MeshPart, Texture};

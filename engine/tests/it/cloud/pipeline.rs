@@ -158,9 +158,14 @@ fn a_sun_color_edit_reads_the_render_layers_and_gives_the_same_version() {
         let out = registry::run(&job, &NoControl).unwrap();
         let names: Vec<&str> = out.iter().map(|o| o.name.as_str()).collect();
         assert_eq!(names, ["render.png", "state.json", "layers.bin"]);
-        out[2].bytes.clone()
+        let state: serde_json::Value = serde_json::from_slice(&out[1].bytes).unwrap();
+        (state, out[2].bytes.clone())
     };
-    let blob = render(&view);
+    // The edit's base is the render's state.json, as a scene's version gives it: with the
+    // density floor the decoder chose (part of the layers' identity).
+    let (rendered, blob) = render(&view);
+    assert!(rendered["density_floor"].is_number(), "{rendered}");
+    let base = rendered;
     let mut edit = view.clone();
     edit["strokes"] = json!([
         {"color": "#ff8040", "pixels": [[20, 15], [21, 15], [19, 16]]},
@@ -198,7 +203,7 @@ fn a_sun_color_edit_reads_the_render_layers_and_gives_the_same_version() {
     assert_ne!(state.sun_color, CloudState::default().sun_color);
 
     // Layers of another camera: marched instead, same result.
-    let other = render(
+    let (_, other) = render(
         &json!({"width": 40, "height": 30, "camera": {"azimuth_deg": 31, "elevation_deg": 10}}),
     );
     let job = decode(PipelineKind::CloudEdit, params.clone(), &bytes, &aux(other));
@@ -207,6 +212,22 @@ fn a_sun_color_edit_reads_the_render_layers_and_gives_the_same_version() {
         named(&registry::run(&job, &NoControl).unwrap()),
         named(&marched)
     );
+
+    // Layers of another density floor, or a base that leaves the floor open (the layers'
+    // floor cannot be checked without the volume): marched.
+    for floor in [json!(0.05), serde_json::Value::Null] {
+        let mut other = params.clone();
+        match &floor {
+            serde_json::Value::Null => {
+                let b = other["base"].as_object_mut().unwrap();
+                b.remove("density_floor");
+                b.remove("density_floor_auto");
+            }
+            f => other["base"]["density_floor"] = f.clone(),
+        }
+        let job = decode(PipelineKind::CloudEdit, other, &bytes, &aux(blob.clone()));
+        assert!(matches!(job, Job::CloudEdit { .. }), "floor {floor}");
+    }
 
     let p = PipelineParams::parse(PipelineKind::CloudEdit, &params, &l).unwrap();
     let corrupt = aux(blob[..blob.len() - 3].to_vec());

@@ -296,13 +296,22 @@ fn heldout_survey() {
         let report: Value = serde_json::from_slice(output(&dusty, "report.json")).unwrap();
         println!(
             "{name}: model {} px, dust changes {:.1} %; close-up dust {:.0} %, HF {ec:.2} vs \
-             {ed:.2}; notes {}; {:.1} s",
+             {ed:.2}; D mean {:.3}, dusty vertices {:.2}; notes {}; {:.1} s",
             mask.iter().filter(|&&m| m).count(),
             share * 100.0,
             100.0 * differs.iter().filter(|&&x| x).count() as f64 / differs.len() as f64,
+            report["amount"]["mean"].as_f64().unwrap_or(f64::NAN),
+            report["amount"]["dusty_vertex_fraction"]
+                .as_f64()
+                .unwrap_or(f64::NAN),
             report["input"]["notes"],
             t0.elapsed().as_secs_f64()
         );
+        std::fs::write(
+            out.join(format!("{name}_amount.png")),
+            output(&dusty, "dust_amount.png"),
+        )
+        .unwrap();
         for (suffix, outs) in [("", &dusty), ("_clean", &clean), ("_close", &near)] {
             std::fs::write(
                 out.join(format!("{name}{suffix}.png")),
