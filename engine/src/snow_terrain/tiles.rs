@@ -204,6 +204,10 @@ impl std::fmt::Debug for Tiled {
 /// Cells of the overview a tiled map reads whole, at most (2048², 16 MiB of heights).
 pub const OVERVIEW_CELLS: u64 = 2048 * 2048;
 
+/// Halo, in cells, above which a tiled map's `snow` and `relief` tiles are computed on a coarser
+/// level (see [`Tiled::level_for`]).
+pub const MAX_DESCRIPTOR_HALO: usize = 160;
+
 /// Steps toward the sun over which a tiled map's cast shadows are read on the tile's own
 /// level (the near field); beyond, the overview's (the far field).
 pub const NEAR_STEPS: usize = 48;
@@ -569,16 +573,16 @@ impl MapSource {
 
     /// The index of the level the tiles of zoom `z` (`tile_size` pixels) are computed on: 0 for
     /// a whole DEM, the COG's level (0 the full resolution, then its overviews) for a tiled one.
-    pub fn level_of_zoom(&self, z: u8, tile_size: u32) -> usize {
-        self.level(z, tile_size).0
+    pub fn level_of_zoom(&self, z: u8, tile_size: u32, layer: Layer) -> usize {
+        self.level(z, tile_size, layer).0
     }
 
-    /// The level the tiles of zoom `z` (`tile_size` pixels) are computed on.
-    fn level(&self, z: u8, tile_size: u32) -> (usize, &Level) {
+    /// The level the tiles of `layer` at zoom `z` (`tile_size` pixels) are computed on.
+    fn level(&self, z: u8, tile_size: u32, layer: Layer) -> (usize, &Level) {
         match &self.grid {
             Grid::Whole { level, .. } => (0, level),
             Grid::Tiled(t) => {
-                let l = t.level_for(z, tile_size);
+                let l = t.level_for(z, tile_size, layer);
                 (l, &t.levels[l])
             }
         }
@@ -632,13 +636,33 @@ impl Level {
 
 impl Tiled {
     /// The coarsest level whose cells are no larger than a pixel of zoom `z` at the map's
-    /// centre latitude (level 0 when even its cells are larger).
-    fn level_for(&self, z: u8, tile_size: u32) -> usize {
+    /// centre latitude (level 0 when even its cells are larger); for the descriptor's layers
+    /// (`snow`, `relief`) no finer than the first level whose halo is at most
+    /// [`MAX_DESCRIPTOR_HALO`] cells.
+    ///
+    /// Why the second rule: the descriptor's smoothing is a length in metres (70 m by default),
+    /// so on cells far finer than it the halo (the diamond's radius times the passes of steps
+    /// 1 and 5) reaches ≈ 900 cells at 0.5 m cells: a 256-px tile would be computed on a window
+    /// of 2000² cells, 60 times its own, seconds per tile. The smoothed field holds no detail finer than
+    /// that length, so the descriptor's layers of the deepest zooms are computed on the level
+    /// whose cells are a fraction of it and resampled; the elevation layers and `hillshade`
+    /// keep the finest level. The rule depends on the zoom and layer only: tiles stay seam-free.
+    fn level_for(&self, z: u8, tile_size: u32, layer: Layer) -> usize {
         let px = mercator::ground_resolution(z, self.lat) * 256.0 / f64::from(tile_size);
-        self.levels
+        let by_pixel = self
+            .levels
             .iter()
             .rposition(|l| (l.dx * l.dy).abs().sqrt() <= px * (1.0 + 1e-9))
-            .unwrap_or(0)
+            .unwrap_or(0);
+        if !layer.needs_descriptor() {
+            return by_pixel;
+        }
+        let by_halo = self
+            .levels
+            .iter()
+            .position(|l| l.halo() <= MAX_DESCRIPTOR_HALO)
+            .unwrap_or(self.levels.len() - 1);
+        by_pixel.max(by_halo)
     }
 
     /// Sun visibility of `cells` of `level`: the cell is lit when it is not below
@@ -1188,7 +1212,7 @@ pub fn render_region(
     region: &Region,
     window: Window,
 ) -> Result<Option<RgbaImage>, MapError> {
-    let (l, level) = src.level(region.z, region.tile_size);
+    let (l, level) = src.level(region.z, region.tile_size, layer);
     let nodes = Nodes::new(src, level, region);
     let (w, h) = (level.width, level.height);
     // The cells under the region (their bilinear neighbours included).

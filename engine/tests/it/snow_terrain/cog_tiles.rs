@@ -147,9 +147,9 @@ fn a_cog_read_by_ranges_is_seam_free_on_its_full_resolution_and_its_overview() {
         z0 += 1;
     }
     let z1 = info.maxzoom - 2;
-    assert_eq!(src.level_of_zoom(z0, 256), 0);
+    assert_eq!(src.level_of_zoom(z0, 256, Layer::Snow), 0);
     assert_eq!(
-        src.level_of_zoom(z1, 256),
+        src.level_of_zoom(z1, 256, Layer::Snow),
         1,
         "z{z1} is drawn from the overview"
     );
