@@ -132,6 +132,7 @@ pub struct MapSource {
 
 /// Where a map's heights come from.
 #[derive(Debug)]
+#[allow(clippy::large_enum_variant)] // one per map: boxing the common case buys nothing
 enum Grid {
     /// The whole DEM in memory (every DEM that fits the decode limits), and its sun-visibility
     /// field, made by the first `relief` tile.

@@ -233,6 +233,9 @@ struct TileCache {
 
 type LevelDecoder = (Decoder<RangeReader>, Arc<AtomicU64>);
 
+/// A decoded internal tile, shared with the cache.
+type Tile = Arc<Vec<f32>>;
+
 /// A tiled GeoTIFF DEM whose tiles are read on demand (see the module documentation).
 pub struct CogDem {
     src: Arc<dyn ByteSource>,
@@ -557,7 +560,7 @@ impl CogDem {
         let wanted: Vec<(usize, usize)> = (ty0..=ty1)
             .flat_map(|ty| (tx0..=tx1).map(move |tx| (tx, ty)))
             .collect();
-        let tiles: Vec<((usize, usize), Arc<Vec<f32>>)> = wanted
+        let tiles: Vec<((usize, usize), Tile)> = wanted
             .par_iter()
             .map(|&(tx, ty)| Ok(((tx, ty), self.tile(l, ty * across + tx)?)))
             .collect::<Result<_, CogError>>()?;
