@@ -44,7 +44,7 @@ fn bench(c: &mut Criterion) {
     g.sample_size(30);
     for layer in [Layer::Snow, Layer::Relief] {
         g.bench_function(format!("{}_z{z}", layer.name()), |b| {
-            b.iter(|| pool.install(|| tile_png(&src, layer, z, x, y, 256).unwrap()))
+            b.iter(|| pool.install(|| tile_png(&src, layer, z, x, y, 256).unwrap().unwrap()))
         });
     }
     g.finish();
@@ -58,7 +58,9 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("map_once");
     g.sample_size(10);
     g.bench_function("sun_visibility_884x868", |b| {
-        b.iter(|| pool.install(|| sun_visibility(src.dem(), 180.0, p.sun_elevation_deg as f32)))
+        b.iter(|| {
+            pool.install(|| sun_visibility(src.dem().unwrap(), 180.0, p.sun_elevation_deg as f32))
+        })
     });
     g.finish();
 }

@@ -64,6 +64,12 @@ pub struct ServeArgs {
     /// Largest input mesh in triangles. Default 4000000.
     #[arg(long, env = "PHENOMENA_MAX_INPUT_TRIANGLES")]
     pub max_input_triangles: Option<u64>,
+    /// Maps (`POST /v1/maps`): a tiled GeoTIFF DEM (a Cloud-Optimized GeoTIFF) with more cells
+    /// than this is read by ranges — its header, a bounded overview and the internal tiles each
+    /// map tile needs — instead of whole; then it may be far larger than `max_input_cells` (up
+    /// to 2^32 cells) and is held in bounded memory. Default 4194304 (2048²).
+    #[arg(long, env = "PHENOMENA_MAP_WHOLE_MAX_CELLS")]
+    pub map_whole_max_cells: Option<u64>,
     /// Memory, in bytes, that this process's up-front input checks and running jobs may hold at
     /// once (see RELIABILITY.md, "Admission"). A check reserves its input's size plus the most
     /// its decode can allocate under the input limits (a DEM: 12 bytes per cell of
@@ -176,6 +182,7 @@ pub struct Config {
     pub max_input_cells: u64,
     pub max_output_pixels: u64,
     pub max_input_triangles: u64,
+    pub map_whole_max_cells: u64,
     pub memory_budget_bytes: u64,
     pub concurrency: usize,
     pub queue_capacity: usize,
@@ -273,6 +280,7 @@ impl Default for Config {
             max_input_cells: 8192 * 8192,
             max_output_pixels: 7680 * 4320,
             max_input_triangles: 4_000_000,
+            map_whole_max_cells: 2048 * 2048,
             memory_budget_bytes: 768 << 20,
             concurrency: 1,
             queue_capacity: 64,
@@ -334,6 +342,7 @@ impl Config {
             max_input_cells: pick!(max_input_cells),
             max_output_pixels: pick!(max_output_pixels),
             max_input_triangles: pick!(max_input_triangles),
+            map_whole_max_cells: pick!(map_whole_max_cells),
             memory_budget_bytes: pick!(memory_budget_bytes),
             concurrency: pick!(concurrency),
             queue_capacity: pick!(queue_capacity),

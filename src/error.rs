@@ -196,6 +196,9 @@ pub enum ApiError {
     },
     #[error("{0}")]
     NotFound(String),
+    /// 410: what the request names existed and is gone for good (a map whose DEM asset expired).
+    #[error("{0}")]
+    Gone(String),
     #[error("{0}")]
     MethodNotAllowed(String),
     /// No or a wrong bearer token on a `/v1` route while tokens are configured.
@@ -295,6 +298,7 @@ impl ApiError {
         match self {
             ApiError::BadRequest { .. } => (StatusCode::BAD_REQUEST, Problem::BadRequest),
             ApiError::NotFound(_) => (StatusCode::NOT_FOUND, Problem::NotFound),
+            ApiError::Gone(_) => (StatusCode::GONE, Problem::InputMissing),
             ApiError::MethodNotAllowed(_) => {
                 (StatusCode::METHOD_NOT_ALLOWED, Problem::MethodNotAllowed)
             }

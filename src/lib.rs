@@ -134,7 +134,12 @@ pub async fn state_with(
     metrics
         .store_bytes
         .set(i64::try_from(jobs.store().blob_bytes().await).unwrap_or(i64::MAX));
-    let maps = maps::Maps::new(jobs.store().clone(), jcfg.threads, cfg.limits())?;
+    let maps = maps::Maps::new(
+        jobs.store().clone(),
+        jcfg.threads,
+        cfg.limits(),
+        cfg.map_whole_max_cells,
+    )?;
     Ok(AppState {
         memory: jcfg.memory.clone(),
         maps,

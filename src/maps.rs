@@ -13,14 +13,29 @@
 //! tile request reads no file, parses no JSON and hashes nothing. Both are safe to keep: a map id
 //! names its DEM and parameters, and a tile key its map, layer, position and renderer version
 //! ([`crate::store::maps::TILE_VERSION`]), so neither changes under its key.
+//!
+//! **DEMs are read through the store by ranges** ([`crate::store::BlobRanges`]): a tiled GeoTIFF
+//! with more than `map_whole_max_cells` cells is opened by its header and a bounded overview and
+//! its tiles are read as map tiles need them ([`tiles::open_source`]); smaller DEMs are read
+//! whole, as before. The bytes read are counted ([`Maps::dem_bytes_read`], the
+//! `phenomena_map_dem_bytes_read_total` metric).
+//!
+//! **Retention.** A map lives as long as its DEM asset: the retention sweep deletes the maps
+//! whose asset expired, with their tiles ([`crate::store::Store::sweep_maps`]). A record is
+//! re-read from the store after [`RECORD_TTL`], and then its asset is checked and marked used
+//! (so a map in use keeps its DEM; at most one store write a minute per map), so a swept map
+//! stops being served by every replica within that time, and a map whose asset is gone answers
+//! 410 ([`MapsError::AssetGone`]).
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use bytes::Bytes;
+use phenomena_engine::formats::dem::cog::ByteSource;
 use phenomena_engine::params::Limits;
-use phenomena_engine::snow_terrain::tiles::{self, Layer, MapError, MapSource};
+use phenomena_engine::snow_terrain::tiles::{self, Layer, MapError, MapSource, SourceKind};
 use phenomena_engine::snow_terrain::SnowTerrainParams;
 use phenomena_engine::ParamError;
 
@@ -36,6 +51,10 @@ pub const HOT_TILE_BYTES: usize = 64 << 20;
 /// Map records kept in memory (all forgotten when one more comes: maps are few and cheap to
 /// read again).
 pub const RECORDS_KEPT: usize = 256;
+
+/// How long a map record is served from memory before it is read again and its DEM asset is
+/// checked and marked used.
+pub const RECORD_TTL: Duration = Duration::from_secs(60);
 
 /// Tiles kept in memory with their ETags, evicted first in, first out past [`HOT_TILE_BYTES`].
 #[derive(Default)]
@@ -56,6 +75,17 @@ pub enum MapsError {
     /// The map pool dropped the work (a panic in the engine).
     #[error("the tile computation failed: {0}")]
     Failed(String),
+    /// The map's DEM asset is no longer stored (it expired unused).
+    #[error("the DEM asset {0} of this map is no longer stored (unused past the retention period); upload the DEM and create the map again")]
+    AssetGone(String),
+}
+
+/// A map record as kept in memory: when it was read, and whether its DEM asset was there.
+#[derive(Clone)]
+struct KeptRecord {
+    rec: Arc<MapRecord>,
+    read_at: Instant,
+    asset_gone: bool,
 }
 
 /// The maps of this process: the store, the pool tiles are computed on, and the prepared DEMs.
@@ -69,6 +99,10 @@ struct Inner {
     pool: rayon::ThreadPool,
     limits: Limits,
     sources: Mutex<Vec<(String, Arc<MapSource>)>>,
+    /// Tiled GeoTIFFs with more cells than this are read by ranges.
+    whole_max_cells: u64,
+    /// Bytes of DEMs read from the store (whole or by ranges).
+    dem_read: Arc<AtomicU64>,
     /// Tiles computed at once (more wait for a permit): as many as the pool has threads.
     permits: tokio::sync::Semaphore,
     /// Cold tiles being computed, by cache key: later requests for one wait for its result.
@@ -76,7 +110,9 @@ struct Inner {
     /// Tiles this process has computed (not read from the cache).
     computed: AtomicU64,
     hot: Mutex<HotTiles>,
-    records: Mutex<HashMap<String, Arc<MapRecord>>>,
+    records: Mutex<HashMap<String, KeptRecord>>,
+    /// The store's map-sweep count when the records and tiles above were last trusted.
+    sweeps_seen: AtomicU64,
 }
 
 impl std::fmt::Debug for Maps {
@@ -86,11 +122,13 @@ impl std::fmt::Debug for Maps {
 }
 
 impl Maps {
-    /// `threads` = 0: one per core.
+    /// `threads` = 0: one per core. Tiled GeoTIFF DEMs with more than `whole_max_cells` cells
+    /// are read by ranges (see the module documentation).
     pub fn new(
         store: Store,
         threads: usize,
         limits: Limits,
+        whole_max_cells: u64,
     ) -> Result<Self, rayon::ThreadPoolBuildError> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -109,11 +147,14 @@ impl Maps {
                 pool,
                 limits,
                 sources: Mutex::new(Vec::new()),
+                whole_max_cells,
+                dem_read: Arc::new(AtomicU64::new(0)),
                 permits,
                 inflight: Mutex::new(HashMap::new()),
                 computed: AtomicU64::new(0),
                 hot: Mutex::new(HotTiles::default()),
                 records: Mutex::new(HashMap::new()),
+                sweeps_seen: AtomicU64::new(0),
             }),
         })
     }
@@ -125,6 +166,39 @@ impl Maps {
     /// Tiles this process has computed so far (cache misses that ran the engine).
     pub fn tiles_computed(&self) -> u64 {
         self.inner.computed.load(Ordering::Relaxed)
+    }
+
+    /// Bytes of DEM assets this process has read from the store for maps.
+    pub fn dem_bytes_read(&self) -> u64 {
+        self.inner.dem_read.load(Ordering::Relaxed)
+    }
+
+    /// The DEM asset `asset` read by ranges; [`MapsError::AssetGone`] when it is not stored.
+    async fn dem_source(&self, asset: &str) -> Result<Arc<dyn ByteSource>, MapsError> {
+        if !self.inner.store.has_blob(asset).await {
+            return Err(MapsError::AssetGone(asset.to_string()));
+        }
+        let src = self
+            .inner
+            .store
+            .blob_ranges(asset, self.inner.dem_read.clone())
+            .await?;
+        Ok(Arc::new(src))
+    }
+
+    /// How the DEM asset `asset` would be read with `params` (its header only): what
+    /// `POST /v1/maps` reserves memory by.
+    pub async fn source_kind(
+        &self,
+        asset: &str,
+        params: &serde_json::Value,
+    ) -> Result<SourceKind, MapsError> {
+        let src = self.dem_source(asset).await?;
+        let (limits, whole) = (self.inner.limits, self.inner.whole_max_cells);
+        let params = params.clone();
+        Ok(self
+            .on_pool(move || tiles::source_kind(&src, &params, &limits, whole))
+            .await??)
     }
 
     /// Validates wire snow-terrain parameters for a map: the canonical JSON (defaults filled,
@@ -157,18 +231,22 @@ impl Maps {
         }
     }
 
-    /// Decodes and prepares the DEM `bytes` with `params` on the map pool (what `POST /v1/maps`
-    /// checks and what a map's first tile needs), keeping it under `id`.
+    /// Reads and prepares the DEM asset `asset` with `params` on the map pool (what
+    /// `POST /v1/maps` checks and what a map's first tile needs), keeping it under `id`: whole,
+    /// or by ranges (see the module documentation).
     pub async fn prepare(
         &self,
         id: &str,
-        bytes: Bytes,
+        asset: &str,
         filename: Option<String>,
         params: serde_json::Value,
     ) -> Result<Arc<MapSource>, MapsError> {
-        let limits = self.inner.limits;
+        let bytes = self.dem_source(asset).await?;
+        let (limits, whole) = (self.inner.limits, self.inner.whole_max_cells);
         let src = self
-            .on_pool(move || tiles::open(&bytes, filename.as_deref(), &params, &limits))
+            .on_pool(move || {
+                tiles::open_source(bytes, filename.as_deref(), &params, &limits, whole)
+            })
             .await??;
         let src = Arc::new(src);
         self.keep(id, src.clone());
@@ -197,33 +275,81 @@ impl Maps {
         if let Some(src) = self.kept(&rec.id) {
             return Ok(src);
         }
-        let bytes = self.inner.store.read_blob(&rec.asset).await?;
-        self.prepare(&rec.id, bytes, rec.filename.clone(), rec.params.clone())
-            .await
+        self.prepare(
+            &rec.id,
+            &rec.asset,
+            rec.filename.clone(),
+            rec.params.clone(),
+        )
+        .await
     }
 
-    /// The map `id` (from memory, else the store).
+    /// The map `id` (from memory when read within [`RECORD_TTL`], else the store); `None` when
+    /// there is no such map, [`MapsError::AssetGone`] when its DEM asset is no longer stored.
+    /// Reading it from the store marks its asset used, so a map in use is not swept.
     pub async fn record(&self, id: &str) -> Result<Option<Arc<MapRecord>>, MapsError> {
-        if let Some(rec) = self
+        self.forget_swept();
+        let kept = self
             .inner
             .records
             .lock()
             .ok()
             .and_then(|m| m.get(id).cloned())
-        {
-            return Ok(Some(rec));
-        }
-        let Some(rec) = self.inner.store.get_map(id).await? else {
-            return Ok(None);
-        };
-        let rec = Arc::new(rec);
-        if let Ok(mut m) = self.inner.records.lock() {
-            if m.len() >= RECORDS_KEPT {
-                m.clear();
+            .filter(|k| k.read_at.elapsed() < RECORD_TTL);
+        let kept = match kept {
+            Some(k) => k,
+            None => {
+                let store = &self.inner.store;
+                let Some(rec) = store.get_map(id).await? else {
+                    if let Ok(mut m) = self.inner.records.lock() {
+                        m.remove(id);
+                    }
+                    return Ok(None);
+                };
+                let asset_gone = match store.get_asset(&rec.asset).await {
+                    Some(a) => {
+                        store.touch_asset(&a).await?;
+                        false
+                    }
+                    None => true,
+                };
+                let k = KeptRecord {
+                    rec: Arc::new(rec),
+                    read_at: Instant::now(),
+                    asset_gone,
+                };
+                if let Ok(mut m) = self.inner.records.lock() {
+                    if m.len() >= RECORDS_KEPT {
+                        m.clear();
+                    }
+                    m.insert(id.to_string(), k.clone());
+                }
+                k
             }
-            m.insert(id.to_string(), rec.clone());
+        };
+        if kept.asset_gone {
+            return Err(MapsError::AssetGone(kept.rec.asset.clone()));
         }
-        Ok(Some(rec))
+        Ok(Some(kept.rec))
+    }
+
+    /// Forgets the records, hot tiles and prepared DEMs kept in memory when a sweep of this
+    /// process removed maps since the last call (other replicas' records expire within
+    /// [`RECORD_TTL`]).
+    fn forget_swept(&self) {
+        let now = self.inner.store.map_sweeps();
+        if self.inner.sweeps_seen.swap(now, Ordering::Relaxed) == now {
+            return;
+        }
+        if let Ok(mut m) = self.inner.records.lock() {
+            m.clear();
+        }
+        if let Ok(mut h) = self.inner.hot.lock() {
+            *h = HotTiles::default();
+        }
+        if let Ok(mut v) = self.inner.sources.lock() {
+            v.clear();
+        }
     }
 
     /// [`Self::tile`] with its strong ETag (the quoted SHA-256 of the PNG), from memory when the
@@ -317,7 +443,7 @@ impl Maps {
         let src = self.source(rec).await?;
         let png = self
             .on_pool(move || tiles::tile_png(&src, layer, z, x, y, size))
-            .await?;
+            .await??;
         self.inner.computed.fetch_add(1, Ordering::Relaxed);
         let Some(png) = png else {
             return Ok(None);
@@ -340,22 +466,33 @@ mod tests {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn concurrent_requests_for_a_cold_tile_compute_it_once() {
         let dir = tempfile::tempdir().unwrap();
-        let maps = Maps::new(Store::open(dir.path()).unwrap(), 2, Limits::default()).unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let maps = Maps::new(store.clone(), 2, Limits::default(), 1 << 22).unwrap();
         let path = concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../shared/data/dem/jacksboro_fault_dem_f32.tif"
         );
         let bytes = Bytes::from(std::fs::read(path).unwrap());
+        let size = bytes.len() as u64;
+        let (asset, _) = store.put_asset(bytes, Some("jacksboro.tif")).await.unwrap();
         let params = maps.params(&serde_json::json!({})).unwrap();
         let id = "0".repeat(64);
         let src = maps
-            .prepare(&id, bytes, Some("jacksboro.tif".into()), params.clone())
+            .prepare(&id, &asset.id, asset.filename.clone(), params.clone())
             .await
             .unwrap();
+        assert!(!src.is_tiled(), "a small DEM is read whole");
+        // Whole once, after its header was read to tell whether it is a large COG (a 64 KiB
+        // read-ahead and the IFD's out-of-line values).
+        let read = maps.dem_bytes_read();
+        assert!(
+            read >= size && read <= size + (128 << 10),
+            "{read} bytes read for a {size}-byte DEM"
+        );
         let info = src.info().clone();
         let rec = MapRecord {
             id,
-            asset: "1".repeat(64),
+            asset: asset.id.clone(),
             filename: None,
             params,
             info: info.clone(),

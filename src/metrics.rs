@@ -1,8 +1,8 @@
 //! Prometheus metrics: one registry per server, rendered as text at `GET /metrics`.
 
 use prometheus::{
-    Encoder, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry,
-    TextEncoder,
+    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
+    Registry, TextEncoder,
 };
 
 /// Every metric the service exports.
@@ -27,6 +27,9 @@ pub struct Metrics {
     pub jobs_started: IntCounterVec,
     /// Always 1, labelled with this replica's name, role and job backend.
     pub replica_info: IntGaugeVec,
+    /// Bytes of DEM assets read from the store for maps (whole, or by ranges for a COG read
+    /// tile by tile); brought up to date at each scrape.
+    pub map_dem_bytes_read: IntCounter,
 }
 
 impl Metrics {
@@ -98,6 +101,10 @@ impl Metrics {
                 &["replica", "role", "backend"],
             )?,
             store_bytes: IntGauge::new("store_bytes", "Bytes held in the blob store")?,
+            map_dem_bytes_read: IntCounter::new(
+                "map_dem_bytes_read_total",
+                "Bytes of DEM assets read from the store for maps",
+            )?,
             registry,
         };
         m.registry.register(Box::new(m.http_requests.clone()))?;
@@ -113,6 +120,8 @@ impl Metrics {
         m.registry.register(Box::new(m.workers.clone()))?;
         m.registry.register(Box::new(m.jobs_started.clone()))?;
         m.registry.register(Box::new(m.replica_info.clone()))?;
+        m.registry
+            .register(Box::new(m.map_dem_bytes_read.clone()))?;
         Ok(m)
     }
 

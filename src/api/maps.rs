@@ -5,7 +5,7 @@ use axum::extract::{Query, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use phenomena_engine::snow_terrain::tiles::{Layer, MapError, MapInfo, Region};
+use phenomena_engine::snow_terrain::tiles::{Layer, MapError, MapInfo, Region, SourceKind};
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 
@@ -36,6 +36,11 @@ impl From<MapsError> for ApiError {
                 detail: format!("dem: {c}"),
                 field: Some("dem".into()),
             },
+            MapsError::Map(MapError::Source(d)) => {
+                tracing::error!(error = %d, "reading a map's DEM");
+                ApiError::Unavailable("storage is unavailable; try again later".into())
+            }
+            e @ MapsError::AssetGone(_) => ApiError::Gone(e.to_string()),
             MapsError::Failed(d) => ApiError::internal(d),
         }
     }
@@ -102,16 +107,21 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
     let (status, rec) = match store.get_map(&id).await? {
         Some(rec) => (StatusCode::OK, rec),
         None => {
-            // The DEM is decoded within the process's memory budget, as a job's input check is:
-            // a corrupt, unsupported or oversize file is a 4xx before anything is kept.
-            let cost = st.jobs.pipelines().decode_cost(PIPELINE, false);
-            let _reservation =
-                super::admission::reserve_worst(&st.memory, asset.size.saturating_add(cost))
-                    .await?;
-            let bytes = store.read_blob(&asset.id).await?;
+            // The DEM is read within the process's memory budget, as a job's input check is: a
+            // corrupt, unsupported or oversize file is a 4xx before anything is kept. A DEM read
+            // whole reserves its bytes and the most its decode can allocate; a COG read by
+            // ranges (its header tells, read first) what the map holds: its bounded overview,
+            // shadow field and tile cache, whatever its cells.
+            let worst = match st.maps.source_kind(&asset.id, &canonical).await? {
+                SourceKind::Whole => asset
+                    .size
+                    .saturating_add(st.jobs.pipelines().decode_cost(PIPELINE, false)),
+                SourceKind::Tiled { held_bytes } => held_bytes,
+            };
+            let _reservation = super::admission::reserve_worst(&st.memory, worst).await?;
             let src = st
                 .maps
-                .prepare(&id, bytes, asset.filename.clone(), canonical.clone())
+                .prepare(&id, &asset.id, asset.filename.clone(), canonical.clone())
                 .await?;
             let rec = MapRecord {
                 id: id.clone(),

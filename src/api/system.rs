@@ -53,6 +53,11 @@ pub async fn readyz(State(st): State<AppState>) -> Result<Json<serde_json::Value
 
 /// `GET /metrics`: Prometheus text exposition.
 pub async fn metrics(State(st): State<AppState>) -> Response {
+    let read = st.maps.dem_bytes_read();
+    let counted = st.metrics.map_dem_bytes_read.get();
+    st.metrics
+        .map_dem_bytes_read
+        .inc_by(read.saturating_sub(counted));
     (
         StatusCode::OK,
         [(

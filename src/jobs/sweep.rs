@@ -1,6 +1,8 @@
 //! Retention, the same for every backend: every `sweep_interval`, finished jobs older than the
-//! retention period are forgotten, unused assets expire, and blobs that nothing references any
-//! more (no job, live asset or cloud scene) are deleted from the store.
+//! retention period are forgotten, unused assets expire, maps whose DEM asset expired are deleted
+//! with their cached tiles (a map in use keeps its asset alive, see `crate::maps`), and blobs
+//! that nothing references any more (no job, live asset or cloud scene) are deleted from the
+//! store.
 //!
 //! With many replicas only one sweeps per interval ([`super::JobBackend::sweep_turn`]): two
 //! sweeps at once would be harmless (deletes are idempotent) but wasteful.
@@ -47,6 +49,16 @@ pub(crate) async fn sweep_once(
         - chrono::Duration::from_std(retention).unwrap_or(chrono::Duration::days(3650));
     let expired = jobs.expire(cutoff).await?;
     let assets = jobs.store().expire_assets(cutoff).await?;
+    // Maps go with their DEM asset (and their cached tiles with them).
+    let (maps, tiles, tile_bytes) = jobs.store().sweep_maps(&assets).await?;
+    if maps > 0 || tiles > 0 {
+        tracing::info!(
+            maps_removed = maps,
+            tiles_removed = tiles,
+            bytes_freed = tile_bytes,
+            "retention sweep: maps"
+        );
+    }
     let mut keep = jobs.referenced_blobs().await?;
     keep.extend(assets);
     keep.extend(jobs.hooks().pinned_blobs().await?);

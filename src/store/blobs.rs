@@ -10,6 +10,7 @@
 //! [`Store::put_blob_stream`] without being held whole in memory.
 
 use std::collections::HashSet;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use bytes::Bytes;
@@ -88,7 +89,70 @@ fn blob_path(sha: &str) -> ObjPath {
     ObjPath::from(format!("blobs/sha256/{prefix}/{sha}"))
 }
 
+/// A blob read by ranges (a map's DEM, issue 22): each [`ByteSource::read_at`] is one ranged
+/// `GET` (an S3 `Range` request; a positioned read of the local file), so a caller that reads a
+/// header and a few tiles never downloads the object whole. Blocking: call it from a thread of
+/// its own (the map pool), never from the async runtime's.
+pub struct BlobRanges {
+    objects: Arc<dyn ObjectStore>,
+    path: ObjPath,
+    size: u64,
+    rt: tokio::runtime::Handle,
+    /// Bytes read so far, shared with the caller's counter.
+    read: Arc<AtomicU64>,
+}
+
+impl phenomena_engine::formats::dem::cog::ByteSource for BlobRanges {
+    fn size(&self) -> u64 {
+        self.size
+    }
+
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        if buf.is_empty() {
+            return Ok(());
+        }
+        let end = offset
+            .checked_add(buf.len() as u64)
+            .filter(|&e| e <= self.size)
+            .ok_or_else(|| std::io::Error::from(std::io::ErrorKind::UnexpectedEof))?;
+        let got = self
+            .rt
+            .block_on(self.objects.get_range(&self.path, offset..end))
+            .map_err(std::io::Error::other)?;
+        if got.len() != buf.len() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                format!("asked {} bytes, got {}", buf.len(), got.len()),
+            ));
+        }
+        buf.copy_from_slice(&got);
+        self.read.fetch_add(got.len() as u64, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
 impl Store {
+    /// The blob `sha` read by ranges (see [`BlobRanges`]), counting the bytes read into `read`.
+    /// Call from within the async runtime (it keeps a handle to it).
+    pub async fn blob_ranges(
+        &self,
+        sha: &str,
+        read: Arc<AtomicU64>,
+    ) -> Result<BlobRanges, StoreError> {
+        if !is_sha256_hex(sha) {
+            return Err(StoreError::Object(format!("no blob {sha:?}")));
+        }
+        let path = blob_path(sha);
+        let size = self.objects().head(&path).await.map_err(obj_err)?.size;
+        Ok(BlobRanges {
+            objects: self.objects().clone(),
+            path,
+            size,
+            rt: tokio::runtime::Handle::current(),
+            read,
+        })
+    }
+
     fn objects(&self) -> &Arc<dyn ObjectStore> {
         &self.blobs.objects
     }
@@ -339,6 +403,28 @@ impl Store {
             Err(object_store::Error::NotFound { .. }) => Ok(None),
             Err(e) => Err(obj_err(e)),
         }
+    }
+
+    /// Deletes every object under `prefix`; returns (objects, bytes) removed.
+    pub(super) async fn delete_prefix(&self, prefix: &str) -> Result<(u64, u64), StoreError> {
+        let metas: Vec<_> = self
+            .objects()
+            .list(Some(&ObjPath::from(prefix)))
+            .try_collect()
+            .await
+            .map_err(obj_err)?;
+        let mut removed = (0u64, 0u64);
+        for m in metas {
+            match self.objects().delete(&m.location).await {
+                Ok(()) => {
+                    removed.0 += 1;
+                    removed.1 += m.size;
+                }
+                Err(object_store::Error::NotFound { .. }) => {}
+                Err(e) => return Err(obj_err(e)),
+            }
+        }
+        Ok(removed)
     }
 
     pub(super) async fn delete_object(&self, key: &str) -> Result<(), StoreError> {

@@ -63,4 +63,50 @@ impl Store {
     pub async fn put_tile(&self, key: &str, png: Bytes) -> Result<(), StoreError> {
         self.put_object(key, png).await
     }
+
+    /// Retention of maps (issue 22): a map lives as long as its DEM asset (serving a map's
+    /// tiles marks the asset used, see `crate::maps`), so the records of maps whose asset is not
+    /// in `alive` (the assets still alive after `expire_assets`) are deleted with every tile
+    /// cached for them, and tiles of renderer versions before [`TILE_VERSION`] (which no replica
+    /// reads) go too. Returns (maps removed, tile objects removed, their bytes).
+    pub async fn sweep_maps(
+        &self,
+        alive: &std::collections::HashSet<String>,
+    ) -> Result<(usize, u64, u64), StoreError> {
+        let mut maps = 0;
+        let mut tiles = (0u64, 0u64);
+        for (key, bytes) in self.list_objects("maps").await? {
+            let Ok(rec) = serde_json::from_slice::<MapRecord>(&bytes) else {
+                tracing::warn!(key = %key, "skipping an unreadable map record");
+                continue;
+            };
+            if alive.contains(&rec.asset) {
+                continue;
+            }
+            // Tiles first: a record without tiles is harmless, tiles without a record are
+            // never swept.
+            for v in 1..=TILE_VERSION {
+                let (n, b) = self
+                    .delete_prefix(&format!("tiles/v{v}/{}", rec.id))
+                    .await?;
+                tiles = (tiles.0 + n, tiles.1 + b);
+            }
+            self.delete_object(&map_key(&rec.id)).await?;
+            maps += 1;
+        }
+        for v in 1..TILE_VERSION {
+            let (n, b) = self.delete_prefix(&format!("tiles/v{v}")).await?;
+            tiles = (tiles.0 + n, tiles.1 + b);
+        }
+        if maps > 0 {
+            self.maps_swept
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        Ok((maps, tiles.0, tiles.1))
+    }
+
+    /// How many sweeps of this process removed maps so far.
+    pub fn map_sweeps(&self) -> u64 {
+        self.maps_swept.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }

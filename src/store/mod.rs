@@ -5,7 +5,7 @@
 //! ```text
 //! blobs/sha256/ab/abcdef…   input assets and job outputs, named by the SHA-256 of their bytes
 //! assets/<sha256>.json      asset metadata (file name, size, last use)
-//! maps/<id>.json            map records (`POST /v1/maps`)
+//! maps/<id>.json            map records (`POST /v1/maps`); swept with their DEM asset
 //! tiles/v<n>/<map>/…         cached map tiles, by map, layer, zoom, column, row and size
 //! staging/                  uploads being streamed in, readiness probes
 //! ```
@@ -21,6 +21,7 @@
 
 pub mod assets;
 mod blobs;
+pub use blobs::BlobRanges;
 pub mod maps;
 
 use std::io::Write;
@@ -78,6 +79,9 @@ pub fn is_sha256_hex(s: &str) -> bool {
 pub struct Store {
     root: PathBuf,
     blobs: blobs::Blobs,
+    /// Map sweeps of this process that removed a map (see `Store::sweep_maps`): the maps of
+    /// this process forget what they keep in memory when it moves.
+    maps_swept: std::sync::Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl Store {
@@ -96,6 +100,7 @@ impl Store {
         Ok(Self {
             root: root.to_path_buf(),
             blobs: blobs::open(blob_url, root)?,
+            maps_swept: Default::default(),
         })
     }
 

@@ -372,3 +372,234 @@ async fn maps_refuse_what_they_cannot_place() {
         "{b}"
     );
 }
+
+/// Retention (issue 22): a map lives as long as its DEM asset. With a 6 s retention and a sweep
+/// every second, the asset (uploaded, then not used again) expires, and the sweep deletes the
+/// map's record and every tile cached for it; the map then answers 404.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn maps_are_swept_with_their_dem_asset() {
+    let s = Server::start(|c| {
+        c.retention_secs = 6;
+        c.sweep_interval_secs = 1;
+    })
+    .await;
+    let asset = upload(&s, "dem/olinda_dem_utm25s.tif").await;
+    let r = post_map(&s, json!({"asset": asset})).await;
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    let id = map["id"].as_str().unwrap().to_string();
+    let z = map["maxzoom"].as_u64().unwrap() as u8;
+    let (x, y) = centre_tile(&map, z);
+    let r = get(
+        &s,
+        s.url(&format!("/v1/maps/{id}/tiles/snow/{z}/{x}/{y}.png")),
+    )
+    .await;
+    assert_eq!(r.status(), 200);
+    let tiles = s.dir.path().join("tiles");
+    let record = s.dir.path().join(format!("maps/{id}.json"));
+    assert!(crate::common::count_files(&tiles) >= 1);
+    assert!(record.is_file());
+    let t0 = std::time::Instant::now();
+    loop {
+        let r = get(&s, s.url(&format!("/v1/maps/{id}"))).await;
+        if r.status() == 404 {
+            problem(r, 404, "not-found").await;
+            break;
+        }
+        assert_eq!(r.status(), 200);
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(40),
+            "the map was not swept"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(250)).await;
+    }
+    assert!(!record.exists(), "the record is deleted");
+    assert_eq!(crate::common::count_files(&tiles), 0, "and its tiles");
+    let r = get(
+        &s,
+        s.url(&format!("/v1/maps/{id}/tiles/snow/{z}/{x}/{y}.png")),
+    )
+    .await;
+    problem(r, 404, "not-found").await;
+}
+
+/// A map whose DEM asset is no longer stored (deleted while the server was down) answers 410
+/// with the reason, for the map, its TileJSON and its tiles.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_map_without_its_dem_answers_410() {
+    let s = Server::start(|_| {}).await;
+    let asset = upload(&s, "dem/jacksboro_fault_dem_f32.tif").await;
+    let r = post_map(&s, json!({"asset": asset})).await;
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    let id = map["id"].as_str().unwrap().to_string();
+    let z = map["maxzoom"].as_u64().unwrap() as u8;
+    let (x, y) = centre_tile(&map, z);
+    let left = s.stop().await;
+    let blob = left
+        .dir
+        .path()
+        .join(format!("blobs/sha256/{}/{asset}", &asset[..2]));
+    std::fs::remove_file(&blob).unwrap();
+    let s = Server::start_in(left, |_| {}).await;
+    for path in [
+        format!("/v1/maps/{id}/tiles/relief/{z}/{x}/{y}.png"),
+        format!("/v1/maps/{id}"),
+        format!("/v1/maps/{id}/tilejson.json"),
+    ] {
+        let r = get(&s, s.url(&path)).await;
+        let p = problem(r, 410, "input-missing").await;
+        assert!(
+            p["detail"].as_str().unwrap().contains(&asset),
+            "{path}: {p}"
+        );
+    }
+}
+
+/// `dem` as a float32 COG written by the engine's COG writer.
+fn cog_of(dem: &phenomena_engine::geom::Dem) -> Vec<u8> {
+    let mut g = dem.georef.clone();
+    g.tags = Default::default();
+    phenomena_engine::formats::geotiff_write::write_float32_geotiff(
+        dem.width,
+        dem.height,
+        &dem.heights,
+        &g,
+    )
+}
+
+/// Tanzawa with `k`² cells per cell (bilinear), a COG large enough that a tile is a small part.
+fn upsampled_tanzawa(k: usize) -> phenomena_engine::geom::Dem {
+    use phenomena_engine::formats::dem::{decode_dem, DemOptions};
+    let path = data("dem/tanzawa_sagami_aster_gdem2.tif");
+    let dem = decode_dem(
+        &std::fs::read(&path).unwrap(),
+        Some("tanzawa.tif"),
+        &DemOptions::default(),
+    )
+    .unwrap();
+    let (w, h) = (dem.width * k, dem.height * k);
+    let mut heights = vec![0f32; w * h];
+    for r in 0..h {
+        let y = ((r as f64 + 0.5) / k as f64 - 0.5).clamp(0.0, (dem.height - 1) as f64);
+        let (r0, fy) = (y.floor() as usize, (y - y.floor()) as f32);
+        let r1 = (r0 + 1).min(dem.height - 1);
+        for c in 0..w {
+            let x = ((c as f64 + 0.5) / k as f64 - 0.5).clamp(0.0, (dem.width - 1) as f64);
+            let (c0, fx) = (x.floor() as usize, (x - x.floor()) as f32);
+            let c1 = (c0 + 1).min(dem.width - 1);
+            let top = dem.at(c0, r0) * (1.0 - fx) + dem.at(c1, r0) * fx;
+            let bottom = dem.at(c0, r1) * (1.0 - fx) + dem.at(c1, r1) * fx;
+            heights[r * w + c] = top * (1.0 - fy) + bottom * fy;
+        }
+    }
+    let mut georef = dem.georef.clone();
+    if let Some(t) = georef.transform.as_mut() {
+        t[1] /= k as f64;
+        t[5] /= k as f64;
+    }
+    phenomena_engine::geom::Dem {
+        width: w,
+        height: h,
+        heights,
+        dx: dem.dx / k as f64,
+        dy: dem.dy / k as f64,
+        georef,
+    }
+}
+
+/// `phenomena_map_dem_bytes_read_total` of the server at `base`.
+async fn dem_bytes_read(c: &reqwest::Client, base: &str) -> u64 {
+    let text = c
+        .get(format!("{base}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    text.lines()
+        .find_map(|l| l.strip_prefix("phenomena_map_dem_bytes_read_total "))
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("no DEM bytes counter in {text}")) as u64
+}
+
+/// A COG DEM in S3-compatible storage (moto) is never downloaded whole: with
+/// `--map-whole-max-cells 500000`, a 2652 × 2604-cell COG makes a map from its header and a
+/// bounded overview, and a tile at the DEM's own zoom reads a few of its internal tiles by
+/// ranged GETs (counted by `phenomena_map_dem_bytes_read_total`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cog_dem_in_s3_is_read_by_ranges() {
+    let moto = crate::shared_store::Moto::start();
+    let endpoint = format!("http://127.0.0.1:{}", moto.port);
+    let c = reqwest::Client::new();
+    let resp = c
+        .put(format!("{endpoint}/phenomena-maps"))
+        .send()
+        .await
+        .unwrap();
+    assert!(resp.status().is_success(), "{}", resp.status());
+    let env = [
+        ("AWS_ACCESS_KEY_ID", "test"),
+        ("AWS_SECRET_ACCESS_KEY", "test"),
+        ("AWS_REGION", "us-east-1"),
+        ("AWS_ENDPOINT", endpoint.as_str()),
+        ("AWS_ALLOW_HTTP", "true"),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let (mut child, addr) = crate::restart::spawn_server_env(
+        dir.path(),
+        &[
+            "--store-url",
+            "s3://phenomena-maps/svc",
+            "--map-whole-max-cells",
+            "500000",
+        ],
+        &env,
+    );
+    let base = format!("http://{addr}");
+    let cog = cog_of(&upsampled_tanzawa(3));
+    let size = cog.len() as u64;
+    let asset: Value = c
+        .post(format!("{base}/v1/assets?filename=tanzawa_cog.tif"))
+        .body(cog)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let r = c
+        .post(format!("{base}/v1/maps"))
+        .json(&json!({"asset": asset["id"]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    assert_eq!(map["width"], 2652);
+    let opened = dem_bytes_read(&c, &base).await;
+    assert!(
+        opened > 0 && opened * 4 < size,
+        "making the map read {opened} of {size} bytes"
+    );
+    let z = map["maxzoom"].as_u64().unwrap() as u8;
+    let (x, y) = centre_tile(&map, z);
+    let id = map["id"].as_str().unwrap();
+    let r = c
+        .get(format!("{base}/v1/maps/{id}/tiles/snow/{z}/{x}/{y}.png"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    let png = decode(&r.bytes().await.unwrap());
+    assert!(png.pixels().filter(|p| p[3] > 0).count() > 256 * 100);
+    let tile = dem_bytes_read(&c, &base).await - opened;
+    assert!(
+        tile > 0 && tile * 6 < size,
+        "one tile read {tile} of {size} bytes"
+    );
+    let _ = child.kill();
+    let _ = child.wait();
+}

@@ -149,13 +149,13 @@ async fn replicas_with_their_own_data_dirs_share_a_blob_directory() {
 }
 
 /// moto's S3-compatible server on a loopback port; killed when dropped.
-struct Moto {
+pub(crate) struct Moto {
     child: Child,
-    port: u16,
+    pub port: u16,
 }
 
 impl Moto {
-    fn start() -> Self {
+    pub fn start() -> Self {
         let port = crate::common::free_port();
         let child = Command::new("moto_server")
             .args(["-H", "127.0.0.1", "-p", &port.to_string()])

@@ -549,17 +549,25 @@ fn t_passes_for(p: &DescriptorParams, cell: f64, radius: usize) -> usize {
 /// without land has no altitude band).
 pub fn resolve(dem: &Dem, p: &DescriptorParams) -> DescriptorParams {
     let cell = (dem.dx * dem.dy).abs().sqrt();
+    let mut r = resolve_smoothing(p, cell);
+    r.sun_azimuth_deg = Some(sun_azimuth_for(dem, p.sun_azimuth_deg).0);
+    if let Some((z0, z1)) = altitude_band(&dem.heights, p) {
+        r.snowline = Some(z0);
+        r.snow_band = Some(z1 - z0);
+    }
+    r
+}
+
+/// `p` with the smoothing of steps 1 and 5 fixed for cells of `cell` metres (the part of
+/// [`resolve`] that depends on the grid's resolution, not its heights): what a map resolves
+/// once per level of a DEM read by levels (`super::tiles`, a COG's overviews).
+pub fn resolve_smoothing(p: &DescriptorParams, cell: f64) -> DescriptorParams {
     let (radius, passes) =
         smoothing_for(p.smooth_length, cell, p.smooth_radius, p.smooth_iterations);
     let mut r = p.clone();
     r.smooth_radius = Some(radius);
     r.smooth_iterations = Some(passes);
     r.descriptor_smooth_iterations = Some(t_passes_for(p, cell, radius));
-    r.sun_azimuth_deg = Some(sun_azimuth_for(dem, p.sun_azimuth_deg).0);
-    if let Some((z0, z1)) = altitude_band(&dem.heights, p) {
-        r.snowline = Some(z0);
-        r.snow_band = Some(z1 - z0);
-    }
     r
 }
 

@@ -28,10 +28,13 @@
 
 use rayon::prelude::*;
 
+use std::sync::Arc;
+
 use super::descriptor::{self, DescriptorParams};
 use super::params::SnowTerrainParams;
 use crate::error::{InputError, ParamError};
-use crate::formats::dem::{decode_dem, DemOptions};
+use crate::formats::dem::cog::{self, ByteSource, CogDem, CogError};
+use crate::formats::dem::{decode_dem, sniff, DemFormat, DemOptions};
 use crate::geom::mercator::{self, CrsError, CrsTransform};
 use crate::geom::Dem;
 use crate::params::Limits;
@@ -116,19 +119,99 @@ pub struct MapInfo {
     pub crs: String,
 }
 
-/// A DEM prepared for tiles: the heights, the CRS transformation and the parameters with every
-/// whole-DEM value resolved. Built once per map.
+/// A DEM prepared for tiles: the heights (whole, or read by ranges from a COG), the CRS
+/// transformation and the parameters with every whole-DEM value resolved. Built once per map.
 #[derive(Debug)]
 pub struct MapSource {
-    dem: Dem,
+    grid: Grid,
     crs: CrsTransform,
+    /// The parameters; their descriptor part resolved for level 0 (the whole DEM's grid).
     params: SnowTerrainParams,
+    info: MapInfo,
+}
+
+/// Where a map's heights come from.
+#[derive(Debug)]
+#[allow(clippy::large_enum_variant)] // one per map: boxing the common case buys nothing
+enum Grid {
+    /// The whole DEM in memory (every DEM that fits the decode limits), and its sun-visibility
+    /// field, made by the first `relief` tile.
+    Whole {
+        dem: Dem,
+        level: Level,
+        sun: std::sync::OnceLock<Vec<f32>>,
+    },
+    /// A tiled GeoTIFF read by ranges, level by level (see [`open_source`]).
+    Tiled(Box<Tiled>),
+}
+
+/// A grid tiles are computed on: level 0 of a whole DEM, or one level of a COG.
+#[derive(Debug, Clone)]
+struct Level {
+    width: usize,
+    height: usize,
+    /// Cell size, metres (east, south).
+    dx: f64,
+    dy: f64,
     /// x = x0 + col·a, y = y0 + row·e (cell corners, CRS units).
     transform: [f64; 4],
-    info: MapInfo,
-    /// The whole DEM's sun visibility (cast shadows), made by the first `relief` tile.
-    sun: std::sync::OnceLock<Vec<f32>>,
+    /// The descriptor parameters resolved for this level: the global values (snowline band,
+    /// sun azimuth) of the map, the smoothing for this level's cells.
+    descriptor: DescriptorParams,
 }
+
+/// A DEM far larger than memory, served from a tiled GeoTIFF (a Cloud-Optimized GeoTIFF) read
+/// by ranges (issue 22).
+///
+/// - **Levels.** The COG's full resolution and its overviews are the levels; the tiles of zoom
+///   `z` are computed on [`Tiled::level_for`]`(z)`, the coarsest level whose cells are no
+///   larger than the zoom's pixels at the map's centre latitude, so a tile reads about as many
+///   cells as it has pixels (plus the halo) at every zoom. The level depends on the zoom only,
+///   so neighbouring tiles of one zoom are computed on one grid and agree along their edges, as
+///   whole-DEM tiles do.
+/// - **Global values** — the snowline band's elevation quantiles and the sun's azimuth
+///   ([`descriptor::resolve`]) — come from the *overview*: the finest level of at most
+///   [`OVERVIEW_CELLS`] cells, read whole once when the map is opened. The smoothing is
+///   resolved per level for its cell size ([`descriptor::resolve_smoothing`]).
+/// - **Cast shadows** are near field plus far field, each a function of the cell's position
+///   only (seam-free): the shadow surface of the terrain within [`NEAR_STEPS`] steps toward the
+///   sun, read on the level's own heights, and beyond that the shadow surface of the overview
+///   ([`shadow_top`], one sweep when the map's first `relief` tile needs it) taken
+///   [`NEAR_STEPS`] steps toward the sun and lowered by the sun's drop over them
+///   ([`Tiled::sun`]).
+///
+/// Memory: the overview and its shadow field (at most 8 bytes × [`OVERVIEW_CELLS`]), the COG's
+/// tile offsets and its decoded-tile cache ([`cog::TILE_CACHE_BYTES`]); see
+/// [`MapSource::held_bytes`].
+struct Tiled {
+    cog: CogDem,
+    levels: Vec<Level>,
+    overview: Dem,
+    /// max(shadow surface, height) of every overview cell, made by the first `relief` tile.
+    far: std::sync::OnceLock<Vec<f32>>,
+    /// Latitude at which zooms are matched to levels (the map's centre).
+    lat: f64,
+}
+
+impl std::fmt::Debug for Tiled {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tiled")
+            .field("cog", &self.cog)
+            .field("levels", &self.levels.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// Cells of the overview a tiled map reads whole, at most (2048², 16 MiB of heights).
+pub const OVERVIEW_CELLS: u64 = 2048 * 2048;
+
+/// Halo, in cells, above which a tiled map's `snow` and `relief` tiles are computed on a coarser
+/// level (see [`Tiled::level_for`]).
+pub const MAX_DESCRIPTOR_HALO: usize = 160;
+
+/// Steps toward the sun over which a tiled map's cast shadows are read on the tile's own
+/// level (the near field); beyond, the overview's (the far field).
+pub const NEAR_STEPS: usize = 48;
 
 /// Which cells a region is computed on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -188,6 +271,18 @@ pub enum MapError {
     Input(#[from] InputError),
     #[error(transparent)]
     Crs(#[from] CrsError),
+    /// Reading the DEM's bytes failed (the store is unavailable): not the client's fault.
+    #[error("reading the DEM: {0}")]
+    Source(String),
+}
+
+impl From<CogError> for MapError {
+    fn from(e: CogError) -> Self {
+        match e {
+            CogError::Input(i) => MapError::Input(i),
+            CogError::Source(s) => MapError::Source(s.to_string()),
+        }
+    }
 }
 
 /// Decodes a DEM (`bytes`, named `filename`) within `limits` and prepares it with the
@@ -199,13 +294,121 @@ pub fn open(
     limits: &Limits,
 ) -> Result<MapSource, MapError> {
     let p = SnowTerrainParams::from_json(params, limits)?;
-    let opts = DemOptions {
+    let opts = dem_options(&p, limits);
+    let dem = decode_dem(bytes, filename, &opts)?;
+    Ok(MapSource::new(dem, &p)?)
+}
+
+fn dem_options(p: &SnowTerrainParams, limits: &Limits) -> DemOptions {
+    DemOptions {
         max_cells: limits.max_input_cells,
         cell_size: p.cell_size,
         vertical_scale: p.vertical_scale,
+    }
+}
+
+/// How [`open_source`] will read a DEM: whole, or by ranges (a tiled GeoTIFF of more than the
+/// caller's `whole_max_cells`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceKind {
+    Whole,
+    /// By ranges: the map holds about `held_bytes` (see [`MapSource::held_bytes`]).
+    Tiled {
+        held_bytes: u64,
+    },
+}
+
+/// Reads only the header of the DEM in `src` (a few kilobytes) to tell how [`open_source`]
+/// will read it: a tiled GeoTIFF whose full resolution has more than `whole_max_cells` cells is
+/// read by ranges, everything else whole.
+pub fn source_kind(
+    src: &Arc<dyn ByteSource>,
+    params: &serde_json::Value,
+    limits: &Limits,
+    whole_max_cells: u64,
+) -> Result<SourceKind, MapError> {
+    Ok(probe(src, params, limits, whole_max_cells)?.0)
+}
+
+/// [`source_kind`], with the opened COG when it is read by ranges.
+fn probe(
+    src: &Arc<dyn ByteSource>,
+    params: &serde_json::Value,
+    limits: &Limits,
+    whole_max_cells: u64,
+) -> Result<(SourceKind, Option<CogDem>), MapError> {
+    let mut magic = [0u8; 4];
+    if src.size() < 8 || src.read_at(0, &mut magic).is_err() {
+        return Ok((SourceKind::Whole, None));
+    }
+    if sniff(&magic, None) != Some(DemFormat::GeoTiff) {
+        return Ok((SourceKind::Whole, None));
+    }
+    let p = SnowTerrainParams::from_json(params, limits)?;
+    let cog = match CogDem::open(src.clone(), &dem_options(&p, limits)) {
+        Ok(c) => c,
+        // Transient: say so; anything else the whole decode reports in its own words.
+        Err(CogError::Source(e)) => return Err(MapError::Source(e.to_string())),
+        Err(CogError::Input(_)) => return Ok((SourceKind::Whole, None)),
     };
-    let dem = decode_dem(bytes, filename, &opts)?;
-    Ok(MapSource::new(dem, &p)?)
+    let l0 = &cog.levels()[0];
+    if (l0.width as u64) * (l0.height as u64) <= whole_max_cells {
+        return Ok((SourceKind::Whole, None));
+    }
+    let ov = overview_level(&cog, whole_max_cells).map_or(OVERVIEW_CELLS, |l| {
+        let lv = &cog.levels()[l];
+        (lv.width * lv.height) as u64
+    });
+    Ok((
+        SourceKind::Tiled {
+            held_bytes: held_tiled(ov),
+        },
+        Some(cog),
+    ))
+}
+
+/// Bytes a tiled map holds: the overview's heights and shadow field, and the tile cache.
+fn held_tiled(overview_cells: u64) -> u64 {
+    overview_cells * 8 + cog::TILE_CACHE_BYTES as u64
+}
+
+/// The finest level of at most [`OVERVIEW_CELLS`] cells and at most `whole_max_cells` (no
+/// more than the caller would hold of a DEM read whole).
+fn overview_level(cog: &CogDem, whole_max_cells: u64) -> Option<usize> {
+    let max = OVERVIEW_CELLS.min(whole_max_cells);
+    cog.levels()
+        .iter()
+        .position(|l| (l.width as u64) * (l.height as u64) <= max)
+}
+
+/// Prepares the DEM in `src` (named `filename`) with the snow-terrain parameters `params`: read
+/// whole and decoded as [`open`] does, unless [`source_kind`] says it is a tiled GeoTIFF larger
+/// than `whole_max_cells`, which is then read by ranges: its header and IFDs now, its bounded
+/// overview (see [`Tiled`]) now, its tiles when map tiles need them.
+pub fn open_source(
+    src: Arc<dyn ByteSource>,
+    filename: Option<&str>,
+    params: &serde_json::Value,
+    limits: &Limits,
+    whole_max_cells: u64,
+) -> Result<MapSource, MapError> {
+    match probe(&src, params, limits, whole_max_cells)? {
+        (_, Some(cog)) => {
+            let p = SnowTerrainParams::from_json(params, limits)?;
+            MapSource::tiled(cog, &p, whole_max_cells)
+        }
+        (_, None) => {
+            let n = usize::try_from(src.size()).map_err(|_| InputError::TooLarge {
+                what: "DEM bytes",
+                actual: src.size(),
+                max: usize::MAX as u64,
+            })?;
+            let mut bytes = vec![0u8; n];
+            src.read_at(0, &mut bytes)
+                .map_err(|e| MapError::Source(e.to_string()))?;
+            open(&bytes, filename, params, limits)
+        }
+    }
 }
 
 impl MapSource {
@@ -221,14 +424,94 @@ impl MapSource {
         let transform = [t[0], t[1], t[3], t[5]];
         let mut params = p.clone();
         params.descriptor = descriptor::resolve(&dem, &p.descriptor);
-        let info = map_info(&dem, &crs, transform)?;
+        let info = map_info(
+            &crs,
+            transform,
+            (dem.width, dem.height),
+            (dem.dx, dem.dy),
+            g.epsg,
+        )?;
+        let level = Level {
+            width: dem.width,
+            height: dem.height,
+            dx: dem.dx,
+            dy: dem.dy,
+            transform,
+            descriptor: params.descriptor.clone(),
+        };
         Ok(Self {
-            dem,
+            grid: Grid::Whole {
+                dem,
+                level,
+                sun: std::sync::OnceLock::new(),
+            },
             crs,
             params,
-            transform,
             info,
-            sun: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// Prepares a COG read by ranges (see [`Tiled`]): reads its overview whole.
+    fn tiled(cog: CogDem, p: &SnowTerrainParams, whole_max_cells: u64) -> Result<Self, MapError> {
+        let g = cog.georef().clone();
+        let t = g.transform.ok_or(CrsError::NoGeoreference)?;
+        if t[2] != 0.0 || t[4] != 0.0 {
+            return Err(CrsError::Rotated.into());
+        }
+        let crs = CrsTransform::new(g.epsg, g.geographic)?;
+        let ov = overview_level(&cog, whole_max_cells).ok_or_else(|| {
+            let last = cog.levels().last().map_or((0, 0), |l| (l.width, l.height));
+            InputError::Unusable(format!(
+                "a DEM this large is served from its overviews, and its smallest is {}×{} cells \
+                 (at most {} cells are needed): add overviews (gdal_translate -of COG, or \
+                 gdaladdo)",
+                last.0,
+                last.1,
+                OVERVIEW_CELLS.min(whole_max_cells)
+            ))
+        })?;
+        let overview = cog.read_level(ov)?;
+        // The global values from the overview; the smoothing per level below.
+        let global = descriptor::resolve(&overview, &p.descriptor);
+        let levels: Vec<Level> = (0..cog.levels().len())
+            .map(|l| {
+                let (dx, dy, lt) = cog.level_grid(l);
+                let lt = lt.unwrap_or([t[0], t[1], t[2], t[3], t[4], t[5]]);
+                let mut d = descriptor::resolve_smoothing(&p.descriptor, (dx * dy).abs().sqrt());
+                d.snowline = global.snowline;
+                d.snow_band = global.snow_band;
+                d.sun_azimuth_deg = global.sun_azimuth_deg;
+                Level {
+                    width: cog.levels()[l].width,
+                    height: cog.levels()[l].height,
+                    dx,
+                    dy,
+                    transform: [lt[0], lt[1], lt[3], lt[5]],
+                    descriptor: d,
+                }
+            })
+            .collect();
+        let l0 = &levels[0];
+        let info = map_info(
+            &crs,
+            l0.transform,
+            (l0.width, l0.height),
+            (l0.dx, l0.dy),
+            g.epsg,
+        )?;
+        let mut params = p.clone();
+        params.descriptor = l0.descriptor.clone();
+        Ok(Self {
+            grid: Grid::Tiled(Box::new(Tiled {
+                cog,
+                levels,
+                overview,
+                far: std::sync::OnceLock::new(),
+                lat: info.center[1],
+            })),
+            crs,
+            params,
+            info,
         })
     }
 
@@ -237,62 +520,315 @@ impl MapSource {
         self.params.shading && self.params.shadows
     }
 
-    /// The sun visibility of every cell (see [`sun_visibility`]), computed on the first call.
-    pub fn sun_field(&self) -> &[f32] {
-        self.sun.get_or_init(|| {
-            let azimuth = self.params.descriptor.sun_azimuth_deg.unwrap_or(180.0);
-            sun_visibility(&self.dem, azimuth, self.params.sun_elevation_deg as f32)
-        })
+    fn sun_angles(&self) -> (f32, f32) {
+        (
+            self.params.descriptor.sun_azimuth_deg.unwrap_or(180.0),
+            self.params.sun_elevation_deg as f32,
+        )
     }
 
     pub fn info(&self) -> &MapInfo {
         &self.info
     }
 
-    pub fn dem(&self) -> &Dem {
-        &self.dem
+    /// The whole DEM, when the map holds it (not for a COG read by ranges).
+    pub fn dem(&self) -> Option<&Dem> {
+        match &self.grid {
+            Grid::Whole { dem, .. } => Some(dem),
+            Grid::Tiled(_) => None,
+        }
     }
 
-    /// The descriptor parameters with the whole DEM's values resolved.
+    /// Whether the DEM is read by ranges.
+    pub fn is_tiled(&self) -> bool {
+        matches!(self.grid, Grid::Tiled(_))
+    }
+
+    /// Bytes read from the DEM's source so far (0 for a whole DEM, which was read by the
+    /// caller).
+    pub fn bytes_fetched(&self) -> u64 {
+        match &self.grid {
+            Grid::Whole { .. } => 0,
+            Grid::Tiled(t) => t.cog.bytes_fetched(),
+        }
+    }
+
+    /// Bytes this map holds in memory at most: a whole DEM's heights and sun field, or a tiled
+    /// one's overview, shadow field and tile cache.
+    pub fn held_bytes(&self) -> u64 {
+        match &self.grid {
+            Grid::Whole { dem, .. } => dem.heights.len() as u64 * 8,
+            Grid::Tiled(t) => held_tiled(t.overview.heights.len() as u64),
+        }
+    }
+
+    /// The descriptor parameters with the whole DEM's values resolved (level 0).
     pub fn descriptor_params(&self) -> &DescriptorParams {
         &self.params.descriptor
     }
 
-    /// Cells a tile's window is grown by on each side.
+    /// Cells a tile's window is grown by on each side (level 0).
     pub fn halo(&self) -> usize {
         descriptor::reach(&self.params.descriptor) + 2
     }
 
-    /// Fractional (column, row) of cell-centre coordinates (grid point (c, r) at (c, r)) of a
-    /// longitude/latitude; `None` where the CRS has no value.
-    fn grid_position(&self, lon: f64, lat: f64) -> Option<(f64, f64)> {
-        let (x, y) = self.crs.from_lonlat(lon, lat)?;
-        let [x0, a, y0, e] = self.transform;
-        Some(((x - x0) / a - 0.5, (y - y0) / e - 0.5))
+    /// The index of the level the tiles of zoom `z` (`tile_size` pixels) are computed on: 0 for
+    /// a whole DEM, the COG's level (0 the full resolution, then its overviews) for a tiled one.
+    pub fn level_of_zoom(&self, z: u8, tile_size: u32, layer: Layer) -> usize {
+        self.level(z, tile_size, layer).0
+    }
+
+    /// The level the tiles of `layer` at zoom `z` (`tile_size` pixels) are computed on.
+    fn level(&self, z: u8, tile_size: u32, layer: Layer) -> (usize, &Level) {
+        match &self.grid {
+            Grid::Whole { level, .. } => (0, level),
+            Grid::Tiled(t) => {
+                let l = t.level_for(z, tile_size, layer);
+                (l, &t.levels[l])
+            }
+        }
+    }
+
+    /// Heights of `cells` of level `l`.
+    fn heights(&self, l: usize, cells: Cells) -> Result<Vec<f32>, CogError> {
+        match &self.grid {
+            Grid::Whole { dem, .. } => {
+                let mut v = Vec::with_capacity(cells.width() * (cells.r1 - cells.r0));
+                for r in cells.r0..cells.r1 {
+                    v.extend_from_slice(&dem.heights[r * dem.width + cells.c0..][..cells.width()]);
+                }
+                Ok(v)
+            }
+            Grid::Tiled(t) => t.cog.read_window(l, cells.c0, cells.r0, cells.c1, cells.r1),
+        }
+    }
+
+    /// Sun visibility of `cells` of level `l` (see [`sun_visibility`] and [`Tiled::sun`]).
+    fn sun(&self, l: usize, cells: Cells) -> Result<Vec<f32>, CogError> {
+        let (azimuth, elevation) = self.sun_angles();
+        match &self.grid {
+            Grid::Whole { dem, sun, .. } => {
+                let field = sun.get_or_init(|| sun_visibility(dem, azimuth, elevation));
+                let mut v = Vec::with_capacity(cells.width() * (cells.r1 - cells.r0));
+                for r in cells.r0..cells.r1 {
+                    v.extend_from_slice(&field[r * dem.width + cells.c0..][..cells.width()]);
+                }
+                Ok(v)
+            }
+            Grid::Tiled(t) => t.sun(l, cells, azimuth, elevation),
+        }
     }
 }
 
-/// Bounds, centre and zooms of a DEM.
-fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsError> {
-    let (w, h) = (dem.width as f64, dem.height as f64);
+impl Level {
+    /// Fractional (column, row) of cell-centre coordinates (grid point (c, r) at (c, r)) of a
+    /// longitude/latitude; `None` where the CRS has no value.
+    fn grid_position(&self, crs: &CrsTransform, lon: f64, lat: f64) -> Option<(f64, f64)> {
+        let (x, y) = crs.from_lonlat(lon, lat)?;
+        let [x0, a, y0, e] = self.transform;
+        Some(((x - x0) / a - 0.5, (y - y0) / e - 0.5))
+    }
+
+    /// Cells a tile's window is grown by on each side.
+    fn halo(&self) -> usize {
+        descriptor::reach(&self.descriptor) + 2
+    }
+}
+
+impl Tiled {
+    /// The coarsest level whose cells are no larger than a pixel of zoom `z` at the map's
+    /// centre latitude (level 0 when even its cells are larger); for the descriptor's layers
+    /// (`snow`, `relief`) no finer than the first level whose halo is at most
+    /// [`MAX_DESCRIPTOR_HALO`] cells.
+    ///
+    /// Why the second rule: the descriptor's smoothing is a length in metres (70 m by default),
+    /// so on cells far finer than it the halo (the diamond's radius times the passes of steps
+    /// 1 and 5) reaches ≈ 900 cells at 0.5 m cells: a 256-px tile would be computed on a window
+    /// of 2000² cells, 60 times its own, seconds per tile. The smoothed field holds no detail finer than
+    /// that length, so the descriptor's layers of the deepest zooms are computed on the level
+    /// whose cells are a fraction of it and resampled; the elevation layers and `hillshade`
+    /// keep the finest level. The rule depends on the zoom and layer only: tiles stay seam-free.
+    fn level_for(&self, z: u8, tile_size: u32, layer: Layer) -> usize {
+        let px = mercator::ground_resolution(z, self.lat) * 256.0 / f64::from(tile_size);
+        let by_pixel = self
+            .levels
+            .iter()
+            .rposition(|l| (l.dx * l.dy).abs().sqrt() <= px * (1.0 + 1e-9))
+            .unwrap_or(0);
+        if !layer.needs_descriptor() {
+            return by_pixel;
+        }
+        let by_halo = self
+            .levels
+            .iter()
+            .position(|l| l.halo() <= MAX_DESCRIPTOR_HALO)
+            .unwrap_or(self.levels.len() - 1);
+        by_pixel.max(by_halo)
+    }
+
+    /// Sun visibility of `cells` of `level`: the cell is lit when it is not below
+    /// max(near, far), where *near* = max over k = 1..[`NEAR_STEPS`] of h(p + k·s) − k·drop on
+    /// the level's heights (s one step toward the sun: one cell along the grid axis closest to
+    /// the sun's direction, a fraction along the other, heights interpolated between two cells
+    /// as [`sun_visibility`]'s sweep does; drop the sun's fall over one step), and *far* = the
+    /// overview's [`shadow_top`] at p + [`NEAR_STEPS`]·s (bilinear) − [`NEAR_STEPS`]·drop. The
+    /// same ramp as the sweep's turns the height's distance to it into visibility. Every value
+    /// depends on the cell's position alone, so tiles agree across edges.
+    fn sun(
+        &self,
+        l: usize,
+        cells: Cells,
+        azimuth: f32,
+        elevation: f32,
+    ) -> Result<Vec<f32>, CogError> {
+        let level = &self.levels[l];
+        let (w, h) = (cells.width(), cells.r1 - cells.r0);
+        if elevation >= 90.0 {
+            return Ok(vec![1.0; w * h]);
+        }
+        let az = f64::from(azimuth).to_radians();
+        let tan_el = f64::from(elevation).to_radians().tan().max(1e-6);
+        let uc = az.sin() / level.dx.abs().max(1e-9);
+        let ur = -az.cos() / level.dy.abs().max(1e-9);
+        let m = uc.abs().max(ur.abs());
+        let (sc, sr) = (uc / m, ur / m);
+        let drop = (tan_el / m) as f32;
+        // The heights the near field reads: the cells grown by the steps on every side.
+        let grow = NEAR_STEPS + 1;
+        let ext = Cells {
+            c0: cells.c0.saturating_sub(grow),
+            r0: cells.r0.saturating_sub(grow),
+            c1: (cells.c1 + grow).min(level.width),
+            r1: (cells.r1 + grow).min(level.height),
+        };
+        let hx = self.cog.read_window(l, ext.c0, ext.r0, ext.c1, ext.r1)?;
+        let ew = ext.width();
+        let eh = ext.r1 - ext.r0;
+        let far = self
+            .far
+            .get_or_init(|| shadow_top(&self.overview, azimuth, elevation));
+        let ov = &self.overview;
+        let [x0, a, y0, e] = level.transform;
+        let ot = ov.georef.transform.unwrap_or([x0, a, 0.0, y0, 0.0, e]);
+        // Height at level position (c, r) with one integer coordinate (the step's primary axis),
+        // −∞ outside the fetched cells or on nodata.
+        let height_at = |c: f64, r: f64| -> f32 {
+            let (cf, rf) = (c - ext.c0 as f64, r - ext.r0 as f64);
+            let (c0, r0) = (cf.floor(), rf.floor());
+            let (fc, fr) = ((cf - c0) as f32, (rf - r0) as f32);
+            let get = |ci: f64, ri: f64| -> f32 {
+                if ci < 0.0 || ri < 0.0 || ci >= ew as f64 || ri >= eh as f64 {
+                    return f32::NEG_INFINITY;
+                }
+                let v = hx[ri as usize * ew + ci as usize];
+                if v.is_nan() {
+                    f32::NEG_INFINITY
+                } else {
+                    v
+                }
+            };
+            let mix = |p: f32, q: f32, f: f32| -> f32 {
+                if p == f32::NEG_INFINITY || f >= 1.0 {
+                    q
+                } else if q == f32::NEG_INFINITY || f <= 0.0 {
+                    p
+                } else {
+                    p + (q - p) * f
+                }
+            };
+            if fc == 0.0 {
+                mix(get(c0, r0), get(c0, r0 + 1.0), fr)
+            } else {
+                mix(get(c0, r0), get(c0 + 1.0, r0), fc)
+            }
+        };
+        // The overview's shadow top at level position (c, r), −∞ outside it.
+        let far_at = |c: f64, r: f64| -> f32 {
+            let x = x0 + (c + 0.5) * a;
+            let y = y0 + (r + 0.5) * e;
+            let oc = (x - ot[0]) / ot[1] - 0.5;
+            let or = (y - ot[3]) / ot[5] - 0.5;
+            let (ow, oh) = (ov.width as f64, ov.height as f64);
+            if !(oc >= -0.5 && or >= -0.5 && oc <= ow - 0.5 && or <= oh - 0.5) {
+                return f32::NEG_INFINITY;
+            }
+            let (oc, or) = (oc.clamp(0.0, ow - 1.0), or.clamp(0.0, oh - 1.0));
+            let (c0, r0) = (oc.floor() as usize, or.floor() as usize);
+            let (c1, r1) = ((c0 + 1).min(ov.width - 1), (r0 + 1).min(ov.height - 1));
+            let (fc, fr) = ((oc - c0 as f64) as f32, (or - r0 as f64) as f32);
+            let mut s = 0.0f32;
+            let mut wsum = 0.0f32;
+            let mut best = f32::NEG_INFINITY;
+            for (ci, ri, wt) in [
+                (c0, r0, (1.0 - fc) * (1.0 - fr)),
+                (c1, r0, fc * (1.0 - fr)),
+                (c0, r1, (1.0 - fc) * fr),
+                (c1, r1, fc * fr),
+            ] {
+                let v = far[ri * ov.width + ci];
+                if v.is_finite() {
+                    best = best.max(v);
+                    if wt > 0.0 {
+                        s += v * wt;
+                        wsum += wt;
+                    }
+                }
+            }
+            if wsum > 0.0 {
+                s / wsum
+            } else {
+                best
+            }
+        };
+        let n = NEAR_STEPS as f64;
+        let out = (0..w * h)
+            .into_par_iter()
+            .map(|k| {
+                let (c, r) = ((cells.c0 + k % w) as f64, (cells.r0 + k / w) as f64);
+                let hk = hx[(k / w + cells.r0 - ext.r0) * ew + (k % w + cells.c0 - ext.c0)];
+                if hk.is_nan() {
+                    return 1.0;
+                }
+                let mut s = far_at(c + n * sc, r + n * sr) - NEAR_STEPS as f32 * drop;
+                for step in 1..=NEAR_STEPS {
+                    let t = step as f64;
+                    let v = height_at(c + t * sc, r + t * sr);
+                    s = s.max(v - step as f32 * drop);
+                }
+                ((hk - s) / drop + 0.5).clamp(0.0, 1.0)
+            })
+            .collect();
+        Ok(out)
+    }
+}
+
+/// Bounds, centre and zooms of a grid of `w × h` cells of `dx × dy` metres.
+fn map_info(
+    crs: &CrsTransform,
+    t: [f64; 4],
+    (width, height): (usize, usize),
+    (dx, dy): (f64, f64),
+    epsg: Option<u32>,
+) -> Result<MapInfo, CrsError> {
+    let (w, h) = (width as f64, height as f64);
     // The outline, 32 points a side: a projected grid's edges are curves in WGS 84.
     let ring = crs
-        .outline_lonlat(t, dem.width, dem.height, 32)
-        .ok_or(CrsError::Unsupported(dem.georef.epsg.unwrap_or(0)))?;
+        .outline_lonlat(t, width, height, 32)
+        .ok_or(CrsError::Unsupported(epsg.unwrap_or(0)))?;
     let mut b = lonlat_bbox(&ring);
     let lim = mercator::MAX_LATITUDE;
     b[1] = b[1].clamp(-lim, lim);
     b[3] = b[3].clamp(-lim, lim);
     let lat_c = (b[1] + b[3]) / 2.0;
-    let cell = (dem.dx * dem.dy).abs().sqrt().max(1e-6);
+    let cell = (dx * dy).abs().sqrt().max(1e-6);
     let zoom_for =
         |metres_per_pixel: f64| (mercator::ground_resolution(0, lat_c) / metres_per_pixel).log2();
     let maxzoom = zoom_for(cell).ceil().clamp(0.0, f64::from(MAX_ZOOM)) as u8;
-    let extent = (w * dem.dx.abs()).max(h * dem.dy.abs()).max(1e-6);
+    let extent = (w * dx.abs()).max(h * dy.abs()).max(1e-6);
     let minzoom = (zoom_for(extent / 256.0)
         .floor()
         .clamp(0.0, f64::from(maxzoom))) as u8;
-    let crs_name = match dem.georef.epsg {
+    let crs_name = match epsg {
         Some(code) => format!("EPSG:{code}"),
         None => "EPSG:4326".to_string(),
     };
@@ -305,9 +841,9 @@ fn map_info(dem: &Dem, crs: &CrsTransform, t: [f64; 4]) -> Result<MapInfo, CrsEr
         ],
         minzoom,
         maxzoom,
-        width: dem.width,
-        height: dem.height,
-        cell_m: [dem.dx.abs(), dem.dy.abs()],
+        width,
+        height,
+        cell_m: [dx.abs(), dy.abs()],
         crs: crs_name,
     })
 }
@@ -332,7 +868,7 @@ struct Nodes {
 }
 
 impl Nodes {
-    fn new(src: &MapSource, r: &Region) -> Self {
+    fn new(src: &MapSource, level: &Level, r: &Region) -> Self {
         let nx = r.width.div_ceil(NODE_PX) as usize;
         let ny = r.height.div_ceil(NODE_PX) as usize;
         let pos = (0..(nx + 1) * (ny + 1))
@@ -343,7 +879,9 @@ impl Nodes {
                 let py = (r.y0 + j * u64::from(NODE_PX)) as f64;
                 let (mx, my) = mercator::pixel_to_mercator(r.z, r.tile_size, px, py);
                 let (lon, lat) = mercator::mercator_to_lonlat(mx, my);
-                src.grid_position(lon, lat).unwrap_or((f64::NAN, f64::NAN))
+                level
+                    .grid_position(&src.crs, lon, lat)
+                    .unwrap_or((f64::NAN, f64::NAN))
             })
             .collect();
         Nodes { nx, pos }
@@ -388,16 +926,17 @@ struct Field {
     values: Vec<f32>,
 }
 
-/// The layer's per-cell values on `cells`.
-fn layer_field(src: &MapSource, layer: Layer, cells: Cells) -> Field {
-    let dem = &src.dem;
+/// The layer's per-cell values on `cells` of `level`.
+fn layer_field(
+    src: &MapSource,
+    (l, level): (usize, &Level),
+    layer: Layer,
+    cells: Cells,
+) -> Result<Field, CogError> {
     let (w, h) = (cells.width(), cells.r1 - cells.r0);
-    let mut heights = Vec::with_capacity(w * h);
-    for r in cells.r0..cells.r1 {
-        heights.extend_from_slice(&dem.heights[r * dem.width + cells.c0..r * dem.width + cells.c1]);
-    }
+    let heights = src.heights(l, cells)?;
     let p = &src.params;
-    let (dx, dy) = (dem.dx as f32, dem.dy as f32);
+    let (dx, dy) = (level.dx as f32, level.dy as f32);
     let (channels, values) = match layer {
         Layer::TerrainRgb | Layer::Terrarium => (1, heights),
         Layer::Hillshade => {
@@ -420,38 +959,40 @@ fn layer_field(src: &MapSource, layer: Layer, cells: Cells) -> Field {
                 width: w,
                 height: h,
                 heights,
-                dx: dem.dx,
-                dy: dem.dy,
-                georef: dem.georef.clone(),
+                dx: level.dx,
+                dy: level.dy,
+                georef: crate::geom::heightfield::GeoRef::default(),
             };
-            // The descriptor of §4.1 on the window, with the whole DEM's values resolved; no
-            // cancellation within a tile (a few milliseconds of work).
-            let t = match descriptor::compute(&window, &p.descriptor, &crate::NoControl, (0.0, 1.0))
-            {
+            // The descriptor of §4.1 on the window, with the whole DEM's values resolved (the
+            // georeferencing only resolves the sun's azimuth, which is given); no cancellation
+            // within a tile (a few milliseconds of work).
+            let t = match descriptor::compute(
+                &window,
+                &level.descriptor,
+                &crate::NoControl,
+                (0.0, 1.0),
+            ) {
                 Ok(d) => d.t,
                 Err(_) => vec![f32::NAN; w * h],
             };
             if layer == Layer::Snow {
                 (1, t.into_iter().map(|t| 1.0 - t).collect())
             } else {
-                let sun = src.casts_shadows().then(|| {
-                    let field = src.sun_field();
-                    let mut v = Vec::with_capacity(w * h);
-                    for r in cells.r0..cells.r1 {
-                        v.extend_from_slice(&field[r * dem.width + cells.c0..][..w]);
-                    }
-                    v
-                });
+                let sun = if src.casts_shadows() {
+                    Some(src.sun(l, cells)?)
+                } else {
+                    None
+                };
                 (3, relief(&window, &t, sun.as_deref(), p))
             }
         }
     };
     debug_assert!(layer.needs_descriptor() || channels == 1);
-    Field {
+    Ok(Field {
         cells,
         channels,
         values,
-    }
+    })
 }
 
 /// Linear RGB per cell of the `relief` layer: §4.2's blend t·rock + (1 − t)·snow (the sea in
@@ -517,6 +1058,25 @@ fn relief(dem: &Dem, t: &[f32], sun: Option<&[f32]>, p: &SnowTerrainParams) -> V
 /// Cost: O(cells) time, the field plus two slices of memory; strided reads when slicing by
 /// columns.
 pub fn sun_visibility(dem: &Dem, azimuth_deg: f32, elevation_deg: f32) -> Vec<f32> {
+    sun_sweep(dem, azimuth_deg, elevation_deg, None)
+}
+
+/// The top of what casts shadow onward at every cell of `dem`: max(S, h), S the shadow surface
+/// of [`sun_visibility`]'s sweep (−∞ where nothing toward the sun casts one, S alone on
+/// nodata). A tiled map's far-field shadows read it on its overview ([`Tiled::sun`]).
+pub fn shadow_top(dem: &Dem, azimuth_deg: f32, elevation_deg: f32) -> Vec<f32> {
+    let mut top = vec![f32::NEG_INFINITY; dem.width * dem.height];
+    sun_sweep(dem, azimuth_deg, elevation_deg, Some(&mut top));
+    top
+}
+
+/// The sweep of [`sun_visibility`]; also writes [`shadow_top`] into `tops` when given.
+fn sun_sweep(
+    dem: &Dem,
+    azimuth_deg: f32,
+    elevation_deg: f32,
+    mut tops: Option<&mut Vec<f32>>,
+) -> Vec<f32> {
     let (w, h) = (dem.width, dem.height);
     let mut vis = vec![1.0f32; w * h];
     if w == 0 || h == 0 || elevation_deg >= 90.0 {
@@ -597,6 +1157,11 @@ pub fn sun_visibility(dem: &Dem, azimuth_deg: f32, elevation_deg: f32) -> Vec<f3
         for (i, &v) in out.iter().enumerate() {
             vis[at(slice, i)] = v;
         }
+        if let Some(t) = tops.as_deref_mut() {
+            for (i, &v) in next.iter().enumerate() {
+                t[at(slice, i)] = v;
+            }
+        }
         std::mem::swap(&mut top, &mut next);
     }
     vis
@@ -640,15 +1205,17 @@ fn normal(f: &[f32], w: usize, h: usize, c: usize, r: usize, dx: f32, dy: f32) -
 }
 
 /// Renders `region` of `layer`, computed on `window`; `None` when no pixel of it falls on the
-/// DEM.
+/// DEM. A whole DEM is drawn from level 0; a DEM read by ranges from the level of the region's
+/// zoom ([`Tiled`]), whose [`Window::Whole`] would be the whole level (tests only).
 pub fn render_region(
     src: &MapSource,
     layer: Layer,
     region: &Region,
     window: Window,
-) -> Option<RgbaImage> {
-    let nodes = Nodes::new(src, region);
-    let (w, h) = (src.dem.width, src.dem.height);
+) -> Result<Option<RgbaImage>, MapError> {
+    let (l, level) = src.level(region.z, region.tile_size, layer);
+    let nodes = Nodes::new(src, level, region);
+    let (w, h) = (level.width, level.height);
     // The cells under the region (their bilinear neighbours included).
     let mut lo = (f64::INFINITY, f64::INFINITY);
     let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
@@ -662,7 +1229,7 @@ pub fn render_region(
     }
     let (wf, hf) = (w as f64, h as f64);
     if !(lo.0 <= wf - 0.5 && hi.0 >= -0.5 && lo.1 <= hf - 0.5 && hi.1 >= -0.5) {
-        return None;
+        return Ok(None);
     }
     let cells = match window {
         Window::Whole => Cells {
@@ -672,7 +1239,7 @@ pub fn render_region(
             r1: h,
         },
         Window::Halo => {
-            let halo = src.halo() as f64 + 1.0;
+            let halo = level.halo() as f64 + 1.0;
             let clip = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
             Cells {
                 c0: clip((lo.0 - halo).floor(), w),
@@ -682,8 +1249,8 @@ pub fn render_region(
             }
         }
     };
-    let field = layer_field(src, layer, cells);
-    Some(resample(&field, layer, &nodes, region, (w, h)))
+    let field = layer_field(src, (l, level), layer, cells)?;
+    Ok(Some(resample(&field, layer, &nodes, region, (w, h))))
 }
 
 /// Tile (`x`, `y`) of zoom `z`, `size` pixels, computed on its window with the halo: `None`
@@ -695,9 +1262,11 @@ pub fn render_tile(
     x: u64,
     y: u64,
     size: u32,
-) -> Option<RgbaImage> {
-    let region = Region::tile(z, x, y, size)?;
-    render_region(src, layer, &region, Window::Halo)
+) -> Result<Option<RgbaImage>, MapError> {
+    match Region::tile(z, x, y, size) {
+        Some(region) => render_region(src, layer, &region, Window::Halo),
+        None => Ok(None),
+    }
 }
 
 /// The tile as PNG bytes (see [`render_tile`]).
@@ -708,8 +1277,9 @@ pub fn tile_png(
     x: u64,
     y: u64,
     size: u32,
-) -> Option<Vec<u8>> {
-    render_tile(src, layer, z, x, y, size).map(|img| crate::formats::png_write::encode_rgba(&img))
+) -> Result<Option<Vec<u8>>, MapError> {
+    Ok(render_tile(src, layer, z, x, y, size)?
+        .map(|img| crate::formats::png_write::encode_rgba(&img)))
 }
 
 /// Bilinear resampling of `field` (grid points at cell centres) into the region's pixels.

@@ -123,7 +123,9 @@ pub(crate) fn parse_nodata(s: &str) -> Option<f64> {
     s.parse::<f64>().ok()
 }
 
-pub(crate) fn read_geo_tags(dec: &mut Decoder<Cursor<&[u8]>>) -> Result<GeoTags, InputError> {
+pub(crate) fn read_geo_tags<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<GeoTags, InputError> {
     let mut f64s = |tag: Tag| -> Result<Option<Vec<f64>>, InputError> {
         match dec.find_tag(tag).map_err(map_tiff_err)? {
             Some(v) => Ok(Some(v.into_f64_vec().map_err(map_tiff_err)?)),
@@ -161,7 +163,7 @@ pub(crate) fn read_geo_tags(dec: &mut Decoder<Cursor<&[u8]>>) -> Result<GeoTags,
 }
 
 /// Band 1 of the decoded samples as f32 heights, nodata → NaN.
-fn to_heights(
+pub(crate) fn to_heights(
     image: DecodingResult,
     cells: usize,
     samples: usize,

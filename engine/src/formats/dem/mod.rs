@@ -17,6 +17,7 @@
 //! the decoder's own buffer of the stored sample type).
 
 mod asc;
+pub mod cog;
 pub(crate) mod geo;
 pub(crate) mod geotiff;
 mod hgt;

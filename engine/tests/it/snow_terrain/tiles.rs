@@ -76,7 +76,9 @@ fn check_seams(name: &str, params: serde_json::Value, layers: &[Layer]) {
         let (cx, cy) = centre_tile(&src, z);
         let block = Region::tiles(z, cx - 1, cy - 1, 3, 3, 256).unwrap();
         for &layer in layers {
-            let whole = render_region(&src, layer, &block, Window::Whole).expect("on the DEM");
+            let whole = render_region(&src, layer, &block, Window::Whole)
+                .unwrap()
+                .expect("on the DEM");
             // The block is inside the DEM for the most part: the test compares real pixels
             // (snow is transparent where there is none: on the sea and the lowlands).
             let min = if layer == Layer::Snow {
@@ -101,6 +103,7 @@ fn check_seams(name: &str, params: serde_json::Value, layers: &[Layer]) {
                         cy - 1 + u64::from(j),
                         256,
                     )
+                    .unwrap()
                     // A tile off the DEM (204) is transparent in the whole-DEM result too.
                     .unwrap_or_else(|| RgbaImage::new_filled(256, 256, [0; 4]));
                     let d = max_diff(&whole, &tile, i, j);
@@ -195,8 +198,12 @@ fn elevation_encodings_decode_back() {
     let (lo, hi) = (236.0 - 1.0, 1076.0 + 1.0);
     let z = src.info().maxzoom;
     let (cx, cy) = centre_tile(&src, z);
-    let rgb = render_tile(&src, Layer::TerrainRgb, z, cx, cy, 256).unwrap();
-    let ter = render_tile(&src, Layer::Terrarium, z, cx, cy, 256).unwrap();
+    let rgb = render_tile(&src, Layer::TerrainRgb, z, cx, cy, 256)
+        .unwrap()
+        .unwrap();
+    let ter = render_tile(&src, Layer::Terrarium, z, cx, cy, 256)
+        .unwrap()
+        .unwrap();
     let mut n = 0;
     for (a, b) in rgb.data.chunks(4).zip(ter.data.chunks(4)) {
         assert_eq!(a[3], b[3]);
@@ -218,11 +225,15 @@ fn tiles_off_the_dem_are_empty() {
     let src = source("olinda_dem_utm25s.tif", json!({}));
     let z = src.info().maxzoom + 2;
     let (cx, cy) = centre_tile(&src, z);
-    assert!(render_tile(&src, Layer::Snow, z, cx + 40, cy, 256).is_none());
+    assert!(render_tile(&src, Layer::Snow, z, cx + 40, cy, 256)
+        .unwrap()
+        .is_none());
     // At the smallest zoom the DEM spans at most one tile's width: part of a tile is drawn.
     let z = src.info().minzoom;
     let (cx, cy) = centre_tile(&src, z);
-    let tile = render_tile(&src, Layer::Hillshade, z, cx, cy, 256).unwrap();
+    let tile = render_tile(&src, Layer::Hillshade, z, cx, cy, 256)
+        .unwrap()
+        .unwrap();
     let n = opaque(&tile);
     assert!(n > 100 && n < 256 * 256, "{n} opaque pixels at z{z}");
 }
@@ -314,8 +325,12 @@ fn cast_shadows_continue_across_tile_edges() {
     let (px, py) = mercator_to_pixel(z, 256, mx, my);
     let (cx, cy) = ((px / 256.0) as u64, (py / 256.0) as u64);
     let block = Region::tiles(z, cx - 1, cy - 1, 3, 3, 256).unwrap();
-    let whole = render_region(&src, Layer::Relief, &block, Window::Whole).unwrap();
-    let unshadowed = render_region(&flat, Layer::Relief, &block, Window::Whole).unwrap();
+    let whole = render_region(&src, Layer::Relief, &block, Window::Whole)
+        .unwrap()
+        .unwrap();
+    let unshadowed = render_region(&flat, Layer::Relief, &block, Window::Whole)
+        .unwrap()
+        .unwrap();
     // The block lies far from the wall: more than its halo away from every tile's window.
     let block_south_row = tip + 1.5 * 256.0 * ground_resolution(z, lat) / dem.dy;
     assert!(
@@ -334,6 +349,7 @@ fn cast_shadows_continue_across_tile_edges() {
                 cy - 1 + u64::from(j),
                 256,
             )
+            .unwrap()
             .unwrap();
             let d = max_diff(&whole, &tile, i, j);
             assert!(
