@@ -30,6 +30,9 @@ pub struct Metrics {
     /// Bytes of DEM assets read from the store for maps (whole, or by ranges for a COG read
     /// tile by tile); brought up to date at each scrape.
     pub map_dem_bytes_read: IntCounter,
+    /// Map tiles this replica computed (cold tiles; a tile read from the shared cache is not
+    /// counted); brought up to date at each scrape.
+    pub map_tiles_computed: IntCounter,
 }
 
 impl Metrics {
@@ -105,6 +108,10 @@ impl Metrics {
                 "map_dem_bytes_read_total",
                 "Bytes of DEM assets read from the store for maps",
             )?,
+            map_tiles_computed: IntCounter::new(
+                "map_tiles_computed_total",
+                "Map tiles this replica computed (cold tiles, not read from the tile cache)",
+            )?,
             registry,
         };
         m.registry.register(Box::new(m.http_requests.clone()))?;
@@ -122,6 +129,8 @@ impl Metrics {
         m.registry.register(Box::new(m.replica_info.clone()))?;
         m.registry
             .register(Box::new(m.map_dem_bytes_read.clone()))?;
+        m.registry
+            .register(Box::new(m.map_tiles_computed.clone()))?;
         Ok(m)
     }
 

@@ -191,7 +191,7 @@ fn tile_size(given: Option<u32>) -> Result<u32, ApiError> {
 /// `scheme://host` of the request, for absolute tile URLs (map clients resolve TileJSON's
 /// `tiles` against nothing): `Host` (`X-Forwarded-Proto` for the scheme behind a proxy); empty
 /// when there is no usable `Host`, leaving the URLs relative.
-fn base_url(headers: &HeaderMap) -> String {
+pub(super) fn base_url(headers: &HeaderMap) -> String {
     let host = headers
         .get(header::HOST)
         .and_then(|v| v.to_str().ok())

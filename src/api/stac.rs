@@ -7,8 +7,10 @@
 //! and `proj:bbox` in the raster's CRS, and the band's data type, nodata and statistics. Tiles
 //! are linked when a web map (`/v1/maps`) of the same DEM and parameters exists; otherwise a
 //! link says how to make one (`POST /v1/maps` with the body given). `datetime` is when the job
-//! finished: the DEM's acquisition time is not known to the service. Links are relative to the
-//! server, like every URL of the API.
+//! finished: the DEM's acquisition time is not known to the service. Every `href` is absolute
+//! (`scheme://host` from the request's `Host`, `X-Forwarded-Proto` behind a proxy, as TileJSON's
+//! tile URLs are): STAC wants an absolute `self` link, and a catalog tool that copies the Item
+//! elsewhere resolves nothing against the server. Without a usable `Host` they stay relative.
 
 use axum::extract::State;
 use axum::http::{header, HeaderValue};
@@ -65,6 +67,7 @@ fn role(name: &str) -> (&'static str, &'static str) {
 pub async fn item(
     State(st): State<AppState>,
     ApiPath(id): ApiPath<String>,
+    headers: axum::http::HeaderMap,
 ) -> Result<Response, ApiError> {
     let found = if is_job_id(&id) {
         st.jobs.get(&id).await?
@@ -114,7 +117,9 @@ pub async fn item(
         )),
     })?;
     let map_links = map_links(&st, &rec).await?;
-    let mut resp = Json(item_json(&rec, &fp, map_links)).into_response();
+    let mut item = item_json(&rec, &fp, map_links);
+    absolute_hrefs(&mut item, &super::maps::base_url(&headers));
+    let mut resp = Json(item).into_response();
     resp.headers_mut().insert(
         header::CONTENT_TYPE,
         HeaderValue::from_static("application/geo+json"),
@@ -160,6 +165,26 @@ async fn map_links(st: &AppState, rec: &JobRecord) -> Result<Vec<Value>, ApiErro
             "body": {"asset": rec.input.asset, "params": params},
             "title": "No web map of this DEM and parameters yet: POST this body to /v1/maps to make one (tiles, TileJSON)",
         })])
+    }
+}
+
+/// Prefixes `base` (`scheme://host`) to every server-relative `href` of the Item: its links'
+/// and its assets'.
+fn absolute_hrefs(item: &mut Value, base: &str) {
+    let Some(obj) = item.as_object_mut() else {
+        return;
+    };
+    for (key, v) in obj.iter_mut() {
+        let holders: Vec<&mut Value> = match (key.as_str(), v) {
+            ("links", Value::Array(links)) => links.iter_mut().collect(),
+            ("assets", Value::Object(assets)) => assets.values_mut().collect(),
+            _ => continue,
+        };
+        for h in holders.into_iter().filter_map(|x| x.get_mut("href")) {
+            if let Some(rel) = h.as_str().filter(|h| h.starts_with('/')) {
+                *h = Value::String(format!("{base}{rel}"));
+            }
+        }
     }
 }
 

@@ -58,6 +58,11 @@ pub async fn metrics(State(st): State<AppState>) -> Response {
     st.metrics
         .map_dem_bytes_read
         .inc_by(read.saturating_sub(counted));
+    let computed = st.maps.tiles_computed();
+    let counted = st.metrics.map_tiles_computed.get();
+    st.metrics
+        .map_tiles_computed
+        .inc_by(computed.saturating_sub(counted));
     (
         StatusCode::OK,
         [(

@@ -511,6 +511,11 @@ fn upsampled_tanzawa(k: usize) -> phenomena_engine::geom::Dem {
 
 /// `phenomena_map_dem_bytes_read_total` of the server at `base`.
 async fn dem_bytes_read(c: &reqwest::Client, base: &str) -> u64 {
+    counter(c, base, "phenomena_map_dem_bytes_read_total").await
+}
+
+/// The Prometheus counter `name` of the server at `base`.
+async fn counter(c: &reqwest::Client, base: &str, name: &str) -> u64 {
     let text = c
         .get(format!("{base}/metrics"))
         .send()
@@ -520,9 +525,100 @@ async fn dem_bytes_read(c: &reqwest::Client, base: &str) -> u64 {
         .await
         .unwrap();
     text.lines()
-        .find_map(|l| l.strip_prefix("phenomena_map_dem_bytes_read_total "))
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' '))
         .and_then(|v| v.trim().parse::<f64>().ok())
-        .unwrap_or_else(|| panic!("no DEM bytes counter in {text}")) as u64
+        .unwrap_or_else(|| panic!("no {name} in {text}")) as u64
+}
+
+/// Many API replicas serve one map and share its tile cache (issue 22, "Caching and scale"):
+/// two `--role api` replicas on one Redis and one store directory. The map made on the first is
+/// served by the second; a tile computed by one is read from the shared cache by the other
+/// (same bytes and ETag; its `phenomena_map_tiles_computed_total` does not move), and each
+/// replica computes only the tiles nobody computed before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn api_replicas_share_a_map_and_its_tile_cache() {
+    use crate::common::{redis_url, RedisPrefix};
+    use crate::scale::Replica;
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = RedisPrefix::new();
+    let redis = redis_url();
+    let a = Replica::spawn(dir.path(), &redis, &prefix.0, "api", "api-a");
+    let b = Replica::spawn(dir.path(), &redis, &prefix.0, "api", "api-b");
+    let c = reqwest::Client::new();
+    let (base_a, base_b) = (a.url(""), b.url(""));
+
+    let path = data("dem/olinda_dem_utm25s.tif");
+    let asset: Value = c
+        .post(a.url("/v1/assets?filename=olinda_dem_utm25s.tif"))
+        .body(std::fs::read(&path).unwrap())
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let r = c
+        .post(a.url("/v1/maps"))
+        .json(&json!({"asset": asset["id"]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let map: Value = r.json().await.unwrap();
+    let id = map["id"].as_str().unwrap().to_string();
+    // The other replica knows the map: its record is in the shared store.
+    let r = c
+        .get(b.url(&format!("/v1/maps/{id}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    let on_b: Value = r.json().await.unwrap();
+    assert_eq!(on_b["id"], map["id"]);
+
+    let z = map["maxzoom"].as_u64().unwrap() as u8;
+    let (x, y) = centre_tile(&map, z);
+    let tile =
+        |r: &Replica, layer: &str| r.url(&format!("/v1/maps/{id}/tiles/{layer}/{z}/{x}/{y}.png"));
+    let fetch = |url: String| {
+        let c = c.clone();
+        async move {
+            let r = c.get(url).send().await.unwrap();
+            assert_eq!(r.status(), 200);
+            let etag = r.headers()["etag"].to_str().unwrap().to_string();
+            (etag, r.bytes().await.unwrap())
+        }
+    };
+    assert_eq!(
+        counter(&c, &base_a, "phenomena_map_tiles_computed_total").await,
+        0
+    );
+    let (etag_a, png_a) = fetch(tile(&a, "snow")).await;
+    assert_eq!(
+        counter(&c, &base_a, "phenomena_map_tiles_computed_total").await,
+        1
+    );
+    let (etag_b, png_b) = fetch(tile(&b, "snow")).await;
+    assert_eq!(etag_a, etag_b);
+    assert_eq!(png_a, png_b);
+    assert_eq!(
+        counter(&c, &base_b, "phenomena_map_tiles_computed_total").await,
+        0,
+        "the second replica read the first one's tile from the shared cache"
+    );
+    // The other way round: a tile the second replica computes is a cache read for the first.
+    let (etag_b2, png_b2) = fetch(tile(&b, "relief")).await;
+    assert_eq!(
+        counter(&c, &base_b, "phenomena_map_tiles_computed_total").await,
+        1
+    );
+    let (etag_a2, png_a2) = fetch(tile(&a, "relief")).await;
+    assert_ne!(etag_a, etag_a2, "two different tiles");
+    assert_eq!((etag_a2, png_a2), (etag_b2, png_b2));
+    assert_eq!(
+        counter(&c, &base_a, "phenomena_map_tiles_computed_total").await,
+        1
+    );
 }
 
 /// A COG DEM in S3-compatible storage (moto) is never downloaded whole: with
