@@ -66,20 +66,41 @@ impl Dem {
         self.heights.iter().filter(|h| !h.is_nan()).count()
     }
 
-    /// (min, max, mean) of valid heights, `None` when every cell is nodata.
+    /// (min, max, mean) of valid heights, `None` when every cell is nodata. See
+    /// [`Self::valid_stats`].
     pub fn stats(&self) -> Option<(f32, f32, f64)> {
-        let mut min = f32::INFINITY;
-        let mut max = f32::NEG_INFINITY;
-        let mut sum = 0.0f64;
-        let mut n = 0usize;
-        for &h in &self.heights {
-            if !h.is_nan() {
-                min = min.min(h);
-                max = max.max(h);
-                sum += f64::from(h);
-                n += 1;
-            }
-        }
-        (n > 0).then(|| (min, max, sum / n as f64))
+        self.valid_stats().map(|(lo, hi, mean, _)| (lo, hi, mean))
+    }
+
+    /// (min, max, mean, count) of the valid heights, `None` when every cell is nodata. Parallel
+    /// over chunks of 2¹⁶ cells; each chunk's sum runs in cell order (`f64`) and the chunks'
+    /// sums are added in chunk order, so the figures do not depend on the thread count (the
+    /// mean is the serial sum's whenever the sums are exact, e.g. integer heights).
+    pub fn valid_stats(&self) -> Option<(f32, f32, f64, usize)> {
+        use rayon::prelude::*;
+        let parts: Vec<(f32, f32, f64, usize)> = self
+            .heights
+            .par_chunks(1 << 16)
+            .map(|c| {
+                let mut min = f32::INFINITY;
+                let mut max = f32::NEG_INFINITY;
+                let mut sum = 0.0f64;
+                let mut n = 0usize;
+                for &h in c {
+                    if !h.is_nan() {
+                        min = min.min(h);
+                        max = max.max(h);
+                        sum += f64::from(h);
+                        n += 1;
+                    }
+                }
+                (min, max, sum, n)
+            })
+            .collect();
+        let (min, max, sum, n) = parts.iter().fold(
+            (f32::INFINITY, f32::NEG_INFINITY, 0.0f64, 0usize),
+            |(a, b, s, n), p| (a.min(p.0), b.max(p.1), s + p.2, n + p.3),
+        );
+        (n > 0).then(|| (min, max, sum / n as f64, n))
     }
 }

@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::altitude::{altitude, elevation_quantiles, max_height};
+use super::altitude::{altitude, max_height, ElevationHistogram};
 use super::smooth::Smoother;
 use super::sun::{apply_sun, Sun};
 use super::transfer::transfer;
@@ -366,6 +366,20 @@ pub fn compute(
     ctl: &dyn Control,
     progress_span: (f32, f32),
 ) -> Result<Descriptor, Canceled> {
+    compute_with(dem, p, ctl, progress_span, None)
+}
+
+/// [`compute`] with the histogram of the DEM's elevations already built (`elevations`; the
+/// pipeline builds it once for the altitude band and the report's deciles). Used by step 4
+/// when it counts the cells the band's quantiles need ([`ElevationHistogram::is_of`] the
+/// `sea_level`), else step 4 builds its own: the same result either way.
+pub fn compute_with(
+    dem: &Dem,
+    p: &DescriptorParams,
+    ctl: &dyn Control,
+    progress_span: (f32, f32),
+    elevations: Option<&ElevationHistogram>,
+) -> Result<Descriptor, Canceled> {
     let (w, h) = (dem.width, dem.height);
     let mut timings = Vec::with_capacity(STAGES.len());
     let mut prog = Progress::new(ctl, progress_span);
@@ -426,7 +440,7 @@ pub fn compute(
     prog.report(2, 0.0);
     ctl.checkpoint()?;
     let t0 = Instant::now();
-    let band = altitude_band(&dem.heights, p);
+    let band = altitude_band(&dem.heights, p, elevations);
     let altitude_ms = ms(t0);
     prog.report(3, 0.0);
     ctl.checkpoint()?;
@@ -551,7 +565,7 @@ pub fn resolve(dem: &Dem, p: &DescriptorParams) -> DescriptorParams {
     let cell = (dem.dx * dem.dy).abs().sqrt();
     let mut r = resolve_smoothing(p, cell);
     r.sun_azimuth_deg = Some(sun_azimuth_for(dem, p.sun_azimuth_deg).0);
-    if let Some((z0, z1)) = altitude_band(&dem.heights, p) {
+    if let Some((z0, z1)) = altitude_band(&dem.heights, p, None) {
         r.snowline = Some(z0);
         r.snow_band = Some(z1 - z0);
     }
@@ -586,7 +600,11 @@ pub fn reach(p: &DescriptorParams) -> usize {
 /// (z₀, z₁) of the altitude term for these parameters (see [`super::altitude`]), `None` when no
 /// cell is land. The `paper` preset (a given snowline, `full_snow_quantile` 1) needs only the
 /// highest cell; otherwise one histogram gives both quantiles.
-fn altitude_band(heights: &[f32], p: &DescriptorParams) -> Option<(f32, f32)> {
+fn altitude_band(
+    heights: &[f32],
+    p: &DescriptorParams,
+    elevations: Option<&ElevationHistogram>,
+) -> Option<(f32, f32)> {
     let need_quantiles =
         p.snowline.is_none() || (p.snow_band.is_none() && p.full_snow_quantile < 1.0);
     if !need_quantiles {
@@ -596,15 +614,15 @@ fn altitude_band(heights: &[f32], p: &DescriptorParams) -> Option<(f32, f32)> {
             None => max_height(heights).map(|m| (z0, m)),
         };
     }
-    let q = elevation_quantiles(
-        heights,
-        p.sea_level,
-        &[
-            f64::from(p.snowline_quantile),
-            f64::from(p.full_snow_quantile),
-            1.0,
-        ],
-    )?;
+    let qs = [
+        f64::from(p.snowline_quantile),
+        f64::from(p.full_snow_quantile),
+        1.0,
+    ];
+    let q = match elevations.filter(|e| e.is_of(p.sea_level)) {
+        Some(e) => e.quantiles(&qs),
+        None => ElevationHistogram::new(heights, p.sea_level)?.quantiles(&qs),
+    };
     let z0 = p.snowline.unwrap_or(q[0]);
     let z1 = match p.snow_band {
         Some(d) => z0 + d,

@@ -6,7 +6,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::altitude::snow_by_elevation_decile;
+use super::altitude::{snow_by_elevation_decile_of_t, ElevationHistogram};
 use super::color::{albedo, albedo_with_rock};
 use super::descriptor;
 use super::ortho::RockColors;
@@ -63,7 +63,7 @@ fn world_heights(dem: &Dem, exaggeration: f32) -> std::borrow::Cow<'_, [f32]> {
     if exaggeration == 1.0 {
         std::borrow::Cow::Borrowed(&dem.heights)
     } else {
-        std::borrow::Cow::Owned(dem.heights.iter().map(|h| h * exaggeration).collect())
+        std::borrow::Cow::Owned(dem.heights.par_iter().map(|h| h * exaggeration).collect())
     }
 }
 
@@ -150,7 +150,8 @@ fn run_in_pool(
     // The descriptor and terrain.glb see `vertical_exaggeration`; the render sees the view's
     // (automatic unless given, see `View::auto_exaggeration`).
     // The DEM's statistics, once (the exaggeration, the report's relief and elevations).
-    let stats = dem.stats();
+    let valid = dem.valid_stats();
+    let stats = valid.map(|(lo, hi, mean, _)| (lo, hi, mean));
     let relief = view::relief_and_extent_of(dem, stats);
     let exaggeration = view_exaggeration(relief, p);
     // What the asked outputs need (`outputs`): the colours feed the render and terrain.glb
@@ -169,17 +170,30 @@ fn run_in_pool(
     // loops with serial stretches between them that leave a core idle. Both sides only read
     // the DEM; neither reports progress but the descriptor (the set-up has no progress of its
     // own). Stage "render_setup" is the set-up's time, overlapping "smooth" … "colour".
-    let ((d, color, color_ms), geometry) = {
+    let (((d, elevations), color, color_ms), geometry) = {
         let (dc, geometry) = rayon::join(
             || -> Result<_, Canceled> {
-                let d = descriptor::compute(dem, &p.descriptor, ctl, (0.0, DESCRIPTOR_END))?;
+                // The elevations' histogram of every valid cell, once: the altitude band's
+                // quantiles (unless a sea leaves cells out) and the report's deciles.
+                let elevations = ElevationHistogram::of_valid(
+                    &dem.heights,
+                    None,
+                    valid.map(|(lo, hi, _, n)| (lo, hi, n)),
+                );
+                let d = descriptor::compute_with(
+                    dem,
+                    &p.descriptor,
+                    ctl,
+                    (0.0, DESCRIPTOR_END),
+                    elevations.as_ref(),
+                )?;
                 if !wants_color {
-                    return Ok((d, Vec::new(), None));
+                    return Ok(((d, elevations), Vec::new(), None));
                 }
                 ctl.progress("colour", DESCRIPTOR_END);
                 let t0 = Instant::now();
                 let color = colors(dem, &d.t, p, rock);
-                Ok((d, color, Some(ms(t0))))
+                Ok(((d, elevations), color, Some(ms(t0))))
             },
             || -> Result<_, Canceled> {
                 if !wants_render {
@@ -219,7 +233,12 @@ fn run_in_pool(
     // other encoders took beyond the render. Outputs not asked for (`outputs`) are not made,
     // and without `render.png` there is no render.
     let t0 = Instant::now();
-    let snow: Vec<f32> = d.t.par_iter().map(|&t| 1.0 - t).collect();
+    // Snow s = 1 − t: stored for snow_cover.tif only (the report's figures read t).
+    let snow: Vec<f32> = if p.wants(TerrainOutput::SnowCover) {
+        d.t.par_iter().map(|&t| 1.0 - t).collect()
+    } else {
+        Vec::new()
+    };
     let render_end = if p.sweep_runs.is_empty() {
         RENDER_END
     } else {
@@ -284,8 +303,10 @@ fn run_in_pool(
                                 },
                                 || {
                                     (
-                                        report_figures(&snow, stats),
-                                        snow_by_elevation_decile(&dem.heights, &snow),
+                                        report_figures(&d.t, stats),
+                                        elevations.as_ref().map_or(vec![None; 10], |e| {
+                                            snow_by_elevation_decile_of_t(e, &dem.heights, &d.t)
+                                        }),
                                     )
                                 },
                             )
@@ -370,20 +391,21 @@ fn run_in_pool(
 }
 
 /// The report's figures: (valid cells, snow-covered cells, mean snow, the DEM's elevation
-/// statistics). Computed beside the render (they need only the descriptor). (valid cells,
-/// covered cells, Σ snow) per chunk, summed in chunk order: the same figures whatever the
-/// thread count.
+/// statistics), from the descriptor `t` (snow s = 1 − t). Computed beside the render (they
+/// need only the descriptor). (valid cells, covered cells, Σ snow) per chunk, summed in chunk
+/// order: the same figures whatever the thread count.
 #[allow(clippy::type_complexity)]
 fn report_figures(
-    snow: &[f32],
+    t: &[f32],
     stats: Option<(f32, f32, f64)>,
 ) -> (usize, usize, f64, Option<(f32, f32, f64)>) {
-    let parts: Vec<(usize, usize, f64)> = snow
+    let parts: Vec<(usize, usize, f64)> = t
         .par_chunks(1 << 16)
         .map(|c| {
             c.iter()
+                .map(|&t| 1.0 - t)
                 .filter(|s| !s.is_nan())
-                .fold((0, 0, 0.0), |(n, k, sum), &s| {
+                .fold((0, 0, 0.0), |(n, k, sum), s| {
                     (n + 1, k + usize::from(s >= 0.5), sum + f64::from(s))
                 })
         })

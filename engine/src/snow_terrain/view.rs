@@ -3,6 +3,8 @@
 //! viewpoints; these are this service's choices for "no parameters", documented at
 //! [`super::params::View`].
 
+use rayon::prelude::*;
+
 use crate::geom::camera::Camera;
 use crate::geom::vec::{normalized, DVec3};
 use crate::geom::Dem;
@@ -81,22 +83,33 @@ fn frame_points(scene: &TerrainScene) -> Vec<[f64; 3]> {
         }
     }
     // Local maxima between lattice points would poke out of the frame: add the highest point of
-    // each lattice block.
-    for bj in (0..h).step_by(sz) {
-        for bi in (0..w).step_by(sx) {
-            let mut best: Option<(usize, usize, f32)> = None;
-            for r in bj..(bj + sz).min(h) {
-                for c in bi..(bi + sx).min(w) {
-                    let y = scene.heights[r * w + c];
-                    if !y.is_nan() && best.is_none_or(|b| y > b.2) {
-                        best = Some((c, r, y));
+    // each lattice block (the first one in row order on ties). Block rows in parallel, then in
+    // order: the same points whatever the thread count.
+    let block_rows: Vec<Vec<(usize, usize)>> = (0..h)
+        .step_by(sz)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|bj| {
+            let r1 = (bj + sz).min(h);
+            (0..w)
+                .step_by(sx)
+                .filter_map(|bi| {
+                    let c1 = (bi + sx).min(w);
+                    let mut best: Option<(usize, usize, f32)> = None;
+                    for r in bj..r1 {
+                        for (c, &y) in scene.heights[r * w + bi..r * w + c1].iter().enumerate() {
+                            if !y.is_nan() && best.is_none_or(|b| y > b.2) {
+                                best = Some((bi + c, r, y));
+                            }
+                        }
                     }
-                }
-            }
-            if let Some((c, r, _)) = best {
-                push(c, r);
-            }
-        }
+                    best.map(|(c, r, _)| (c, r))
+                })
+                .collect()
+        })
+        .collect();
+    for (c, r) in block_rows.into_iter().flatten() {
+        push(c, r);
     }
     out
 }

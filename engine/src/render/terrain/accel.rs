@@ -66,20 +66,33 @@ impl<'a> TerrainAccel<'a> {
             let (w, h) = (cw.div_ceil(2), ch.div_ceil(2));
             let mut max = vec![f32::NEG_INFINITY; w * h];
             let (gw, gh) = (scene.width, scene.height);
-            max.par_chunks_mut(w).enumerate().for_each(|(j, row)| {
-                let r1 = (2 * j + 2).min(gh - 1);
-                for (i, m) in row.iter_mut().enumerate() {
-                    let c1 = (2 * i + 2).min(gw - 1);
-                    let mut acc = f32::NEG_INFINITY;
+            // Per node row: the column maxima of its (up to) three grid rows first, then the
+            // maxima of three adjacent columns, both branch-free loops the compiler vectorises.
+            // `max` ignores NaN operands (all NaN: −∞), and the maximum does not depend on the
+            // order.
+            max.par_chunks_mut(w)
+                .enumerate()
+                .for_each_init(Vec::new, |col, (j, row)| {
+                    let r1 = (2 * j + 2).min(gh - 1);
+                    col.clear();
+                    col.resize(gw, f32::NEG_INFINITY);
                     for r in 2 * j..=r1 {
-                        for &v in &scene.heights[r * gw + 2 * i..=r * gw + c1] {
-                            // `max` ignores NaN operands.
-                            acc = acc.max(v);
+                        for (m, &v) in col.iter_mut().zip(&scene.heights[r * gw..(r + 1) * gw]) {
+                            *m = m.max(v);
                         }
                     }
-                    *m = acc;
-                }
-            });
+                    // Node i covers grid columns 2i ..= min(2i + 2, gw − 1).
+                    let whole = (gw - 1) / 2;
+                    for (i, m) in row.iter_mut().enumerate().take(whole) {
+                        *m = col[2 * i].max(col[2 * i + 1]).max(col[2 * i + 2]);
+                    }
+                    for (i, m) in row.iter_mut().enumerate().skip(whole) {
+                        let c1 = (2 * i + 2).min(gw - 1);
+                        *m = col[2 * i..=c1]
+                            .iter()
+                            .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+                    }
+                });
             levels.push(Level { w, h, max });
             while levels.last().is_some_and(|l| l.w > 1 || l.h > 1) {
                 let Some(prev) = levels.last() else { break };

@@ -181,12 +181,22 @@ impl RenderPath {
     }
 }
 
+/// (lowest, highest) valid height, `None` when every height is NaN. Parallel over chunks (the
+/// extremes do not depend on the order).
 pub(crate) fn height_range(h: &[f32]) -> Option<(f32, f32)> {
+    use rayon::prelude::*;
     let (lo, hi) = h
-        .iter()
-        .filter(|v| !v.is_nan())
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
+        .par_chunks(1 << 16)
+        .map(|c| {
+            c.iter()
+                .filter(|v| !v.is_nan())
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                })
+        })
+        .reduce(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |x, y| (x.0.min(y.0), x.1.max(y.1)),
+        );
     (lo <= hi).then_some((lo, hi))
 }
