@@ -404,7 +404,7 @@ fn collapse_to_budget(
         edges.sort_unstable();
         let outline = edges
             .iter()
-            .filter(|&&e| edges.binary_search(&((e << 32) | (e >> 32))).is_err())
+            .filter(|&&e| edges.binary_search(&e.rotate_left(32)).is_err())
             .count();
         2 * out.len() / 3 + 2 * outline
     };
