@@ -404,6 +404,31 @@ fn thin_strips_over_the_budget_collapse_within_it() {
             assert!((p[1] - 0.125).abs() < 1e-5 || p[1].abs() < 1e-5, "{p:?}");
         }
     }
+    // Isolated single cells (12 triangles each, 2 of them on top) over a budget larger than
+    // twice their tops: the collapse pass must not ask meshoptimizer for more triangles than
+    // its input has (it aborts the process), and every region stays closed.
+    for (c, s) in maps.layers[0].snow.iter_mut().enumerate() {
+        *s = if (c / nx) % 2 == 0 && (c % nx) % 2 == 0 {
+            125_000
+        } else {
+            0
+        };
+    }
+    let (meshes, rep) = simplified_snow_meshes(&maps, DEFAULT_MIN_DEPTH_M, 0.1, 5_000);
+    eprintln!("single cells: {rep:?}");
+    assert_eq!(meshes.len(), 32 * 32);
+    assert!(
+        rep.collapsed && rep.triangles <= rep.full_triangles,
+        "{rep:?}"
+    );
+    for m in &meshes {
+        assert_closed(&m.positions, &m.triangles, &m.name);
+        assert!(
+            signed_volume(&m.positions, &m.triangles) > 0.0,
+            "{}",
+            m.name
+        );
+    }
 }
 
 #[test]
