@@ -17,8 +17,10 @@ WORKDIR /src
 # viewer) from the npm registry with `npm ci` (web/package.json + web/package-lock.json) and embeds
 # it in the binary; the runtime image needs no Node. Without npm the build still succeeds and the
 # page says that its 3-D viewer is not installed.
+# g++: the `meshopt` crate compiles meshoptimizer's C++ (snow_cover/simplify.rs); the slim image
+# has only the C compiler.
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends nodejs npm \
+    && apt-get install -y --no-install-recommends nodejs npm g++ \
     && rm -rf /var/lib/apt/lists/*
 COPY . .
 RUN cargo build --release --locked --bin phenomena \

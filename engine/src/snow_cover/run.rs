@@ -428,6 +428,8 @@ pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Ou
             "within_budget": simplified.within_budget,
             "full_resolution_regions": simplified.full_resolution_regions,
             "open_regions": simplified.open_regions,
+            "collapsed": simplified.collapsed,
+            "collapse_kept_regions": simplified.collapse_kept_regions,
         },
         "displaced": {
             "vertices": displaced.positions.len(),

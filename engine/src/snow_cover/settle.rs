@@ -260,12 +260,35 @@ impl Settler {
         self.active.iter_mut().for_each(|a| *a = true);
         self.dirty.iter_mut().for_each(|a| *a = true);
         self.dirty_next.iter_mut().for_each(|a| *a = false);
+        self.iterate_until_settled(
+            maps,
+            (t_drop, tol),
+            self.jacobi_iterations,
+            max_iterations,
+            rep,
+            ctl,
+        )
+    }
+
+    /// The iterations of [`Settler::stabilize`] and [`Settler::stabilize_from`] from the current
+    /// active and dirty sets: `jacobi` Jacobi iterations, then a height-ordered sweep, then the
+    /// confirming check (a sweep again only where it finds an outflow), until an iteration moves
+    /// nothing or `rep.iterations` reaches `max_iterations`. Adds to `rep` and fills its m³.
+    fn iterate_until_settled(
+        &mut self,
+        maps: &mut SnowMaps,
+        (t_drop, tol): (f32, f32),
+        jacobi: usize,
+        max_iterations: usize,
+        mut rep: SettleReport,
+        ctl: &dyn Control,
+    ) -> Result<SettleReport, Canceled> {
         while rep.iterations < max_iterations {
             ctl.checkpoint()?;
             rep.iterations += 1;
-            let (moved, lost) = if rep.iterations <= self.jacobi_iterations {
+            let (moved, lost) = if rep.iterations <= jacobi {
                 self.iterate(maps, t_drop, tol, self.relaxation)
-            } else if rep.iterations > self.jacobi_iterations + 1
+            } else if rep.iterations > jacobi + 1
                 && !self.any_outflow(maps, t_drop, tol, self.sweep_relaxation)
             {
                 // After a sweep the state is settled (see `sweep`): the confirming pass is this
@@ -302,7 +325,6 @@ impl Settler {
         assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
         let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
         let tol = self.tolerance * maps.cell;
-        let mut rep = SettleReport::default();
         self.dirty.iter_mut().for_each(|a| *a = false);
         self.dirty_next.iter_mut().for_each(|a| *a = false);
         self.changed.iter_mut().for_each(|a| *a = false);
@@ -313,27 +335,14 @@ impl Settler {
         }
         // Active: the tiles holding a seed (the sweep reads dirty cells of active tiles only).
         self.active.copy_from_slice(&self.changed);
-        while rep.iterations < max_iterations {
-            ctl.checkpoint()?;
-            rep.iterations += 1;
-            let (moved, lost) = if rep.iterations > 1
-                && !self.any_outflow(maps, t_drop, tol, self.sweep_relaxation)
-            {
-                (0, 0)
-            } else {
-                self.sweep(maps, t_drop, tol, self.sweep_relaxation, ctl)?
-            };
-            rep.moved_units += moved;
-            rep.lost_units += lost;
-            if moved == 0 {
-                rep.converged = true;
-                break;
-            }
-        }
-        let v = maps.unit_volume_m3();
-        rep.moved_m3 = rep.moved_units as f64 * v;
-        rep.lost_m3 = rep.lost_units as f64 * v;
-        Ok(rep)
+        self.iterate_until_settled(
+            maps,
+            (t_drop, tol),
+            0,
+            max_iterations,
+            SettleReport::default(),
+            ctl,
+        )
     }
 
     /// One Jacobi iteration; returns (moved, lost) units. The outflows of every cell of the active

@@ -22,9 +22,25 @@
 //! infinite error). The skirts are those of the full-resolution mesh, so the mesh stays closed.
 //!
 //! **Budget.** The threshold starts at [`DEFAULT_MAX_ERROR_CELLS`] of a cell; while the meshes would
-//! exceed `max_triangles`, it doubles (counting is a traversal without output). The boundary is
-//! never simplified, so a scene whose full-resolution outline alone needs more triangles keeps
-//! them ([`SimplifyReport::within_budget`] says so).
+//! exceed `max_triangles`, it doubles (counting is a traversal without output). The RTIN never
+//! simplifies the boundary, so a scene whose full-resolution outlines alone need more triangles
+//! goes on to the edge-collapse pass below.
+//!
+//! **Over the budget** (issue 18: a slatted container roof and a piano gave 4,803 and 1,522
+//! regions, thin strips and single cells, whose outlines alone were 290 k and 170 k triangles,
+//! 7.15 and 4.07 MB of `snow.glb`): the RTIN meshes at the starting threshold, then their top
+//! surfaces together through meshoptimizer's edge-collapse simplifier (Garland–Heckbert quadric
+//! error; `meshopt` crate, meshoptimizer 0.25) with the base height under each vertex as an
+//! attribute, lowest-error collapses first, so flat tops and straight runs of an outline merge
+//! first (at no error) and curved detail goes last. Each region is rebuilt closed from its
+//! simplified top: the same triangulation at the base heights, and a skirt under every outline
+//! edge. The target count is lowered until tops, bottoms and skirts fit the budget (at most four
+//! tries); a region whose rebuilt mesh is not closed keeps its RTIN mesh
+//! ([`SimplifyReport::collapse_kept_regions`]); the report's `max_error_m` is the larger of the
+//! two passes' errors, and [`SimplifyReport::within_budget`] says whether the budget was met
+//! (single cells cannot go below 12 triangles). Why not the whole closed mesh through the
+//! collapse: on thin slabs it pinched them (directed edges used twice in 1,252 of the
+//! container's 4,803 regions), and a pinched region has to keep its full mesh.
 //!
 //! Cost: per region `O(G²)` for the errors (G the padded side) and a traversal per threshold tried;
 //! regions in parallel (rayon), output in region order, so the result does not depend on the
@@ -58,6 +74,12 @@ pub struct SimplifyReport {
     pub full_resolution_regions: usize,
     /// Regions whose mesh is not closed even at full resolution (kept simplified).
     pub open_regions: usize,
+    /// The RTIN alone could not reach the budget, so the edge-collapse pass ran (module doc,
+    /// "Over the budget"); `max_error_m` is then the larger of the RTIN's threshold and the
+    /// collapse's error.
+    pub collapsed: bool,
+    /// Regions whose collapsed mesh was not closed and that kept their RTIN mesh.
+    pub collapse_kept_regions: usize,
 }
 
 /// One region's RTIN: the padded grid and the accumulated errors.
@@ -283,6 +305,12 @@ pub fn simplified_snow_meshes(
         tau *= 2.0;
         n = count(tau);
     }
+    // The outlines alone exceed the budget: the RTIN at the starting threshold, then the
+    // edge-collapse pass (module doc, "Over the budget").
+    let collapse = n > max_triangles;
+    if collapse {
+        tau = (max_error_cells.max(0.0) * maps.cell).max(1e-9);
+    }
     rep.within_budget = n <= max_triangles;
     rep.max_error_m = tau;
     let built: Vec<RegionMesh> = rtins
@@ -314,9 +342,166 @@ pub fn simplified_snow_meshes(
         .iter()
         .filter(|b| matches!(b, RegionMesh::Open(_)))
         .count();
-    let meshes: Vec<SnowMesh> = built.into_iter().map(RegionMesh::into_mesh).collect();
+    let mut meshes: Vec<SnowMesh> = built.into_iter().map(RegionMesh::into_mesh).collect();
+    if collapse {
+        let (err, kept) = collapse_to_budget(&mut meshes, max_triangles, span.max(tau));
+        rep.collapsed = true;
+        rep.collapse_kept_regions = kept;
+        rep.max_error_m = rep.max_error_m.max(err);
+    }
     rep.triangles = meshes.iter().map(|m| m.triangles.len()).sum();
+    if collapse {
+        rep.within_budget = rep.triangles <= max_triangles;
+    }
     (meshes, rep)
+}
+
+/// The edge-collapse pass (module doc, "Over the budget"): the top surfaces of all `meshes`
+/// together through meshoptimizer's simplifier (quadric error on the top, the base height under
+/// each vertex weighed in as an attribute; lowest-error collapses first; the outline may
+/// collapse along itself, so straight runs of it merge), down to a triangle count for which the
+/// tops, their mirrored bottoms and the skirts along their new outlines fit `max_triangles`, or
+/// until the next collapse would cost more than `max_error` metres. Each region is then rebuilt
+/// closed: the simplified top, the same triangulation at the base heights (reversed), and a
+/// two-triangle skirt per outline edge. A region whose rebuilt mesh is not closed (a collapse
+/// pinched its outline) or is empty keeps its mesh. Returns the error reached (metres) and the
+/// number of regions that kept their mesh. Serial (meshoptimizer is single-threaded) and
+/// deterministic.
+fn collapse_to_budget(
+    meshes: &mut [SnowMesh],
+    max_triangles: usize,
+    max_error: f32,
+) -> (f32, usize) {
+    // The top vertices are the even ones (`build` pushes a corner's top, then its bottom), the
+    // top triangles those with three even corners.
+    let mut top: Vec<[f32; 3]> = Vec::new();
+    let mut base_y: Vec<f32> = Vec::new();
+    let mut indices: Vec<u32> = Vec::new();
+    let mut first: Vec<u32> = Vec::with_capacity(meshes.len() + 1);
+    for m in meshes.iter() {
+        let off = top.len() as u32;
+        first.push(off);
+        for v in m.positions.chunks_exact(2) {
+            top.push(v[0]);
+            base_y.push(v[1][1]);
+        }
+        for t in &m.triangles {
+            if t.iter().all(|&i| i % 2 == 0) {
+                indices.extend(t.iter().map(|&i| i / 2 + off));
+            }
+        }
+    }
+    first.push(top.len() as u32);
+    let locks = vec![false; top.len()];
+    // Triangles of the closed meshes built on a simplified top: top, bottom, and 2 per outline
+    // edge (a directed edge whose reverse is not in the top).
+    let closed_count = |out: &[u32]| -> usize {
+        let mut edges: Vec<u64> = out
+            .chunks_exact(3)
+            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+            .map(|(a, b)| (u64::from(a) << 32) | u64::from(b))
+            .collect();
+        edges.sort_unstable();
+        let outline = edges
+            .iter()
+            .filter(|&&e| edges.binary_search(&e.rotate_left(32)).is_err())
+            .count();
+        2 * out.len() / 3 + 2 * outline
+    };
+    let mut target = max_triangles / 2;
+    let mut out = Vec::new();
+    let mut err = 0f32;
+    for _ in 0..4 {
+        // meshoptimizer asserts (aborts) on a target above the input's count.
+        target = target.min(indices.len() / 3);
+        err = 0.0;
+        out = meshopt::simplify_with_attributes_and_locks_decoder(
+            &indices,
+            &top,
+            &base_y,
+            &[1.0],
+            std::mem::size_of::<f32>(),
+            &locks,
+            target * 3,
+            max_error,
+            meshopt::SimplifyOptions::ErrorAbsolute,
+            Some(&mut err),
+        );
+        let n = closed_count(&out);
+        if n <= max_triangles || out.len() / 3 > target {
+            // Within the budget, or stopped by the error limit (a smaller target would not help).
+            break;
+        }
+        target = ((target as f64 * max_triangles as f64 / n as f64) * 0.97) as usize;
+    }
+    // Collapses never join two regions (they share no edge), so each output triangle lies in
+    // the vertex range of the region it came from.
+    let mut per_region: Vec<Vec<[u32; 3]>> = vec![Vec::new(); meshes.len()];
+    for t in out.chunks_exact(3) {
+        let r = first.partition_point(|&f| f <= t[0]) - 1;
+        per_region[r].push([t[0], t[1], t[2]].map(|i| i - first[r]));
+    }
+    let mut kept = 0;
+    for (m, tris) in meshes.iter_mut().zip(per_region) {
+        let n_top = m
+            .triangles
+            .iter()
+            .filter(|t| t.iter().all(|&i| i % 2 == 0))
+            .count();
+        if tris.len() == n_top {
+            continue;
+        }
+        match rebuild(m, &tris) {
+            Some(s) => *m = s,
+            None => kept += 1,
+        }
+    }
+    (err, kept)
+}
+
+/// The closed mesh of region mesh `m` on the simplified top `tris` (indices of `m`'s top
+/// vertices, counted from 0: top vertex `v` is `m.positions[2v]`, its base `2v + 1`); `None`
+/// when it is empty or not closed.
+fn rebuild(m: &SnowMesh, tris: &[[u32; 3]]) -> Option<SnowMesh> {
+    let mut remap = vec![u32::MAX; m.positions.len() / 2];
+    let mut s = SnowMesh {
+        name: m.name.clone(),
+        ..SnowMesh::default()
+    };
+    let mut tops: Vec<[u32; 3]> = Vec::with_capacity(tris.len());
+    for t in tris {
+        tops.push(t.map(|v| {
+            let r = &mut remap[v as usize];
+            if *r == u32::MAX {
+                *r = s.positions.len() as u32;
+                s.positions.push(m.positions[2 * v as usize]);
+                s.positions.push(m.positions[2 * v as usize + 1]);
+            }
+            *r
+        }));
+    }
+    let mut edges: Vec<(u32, u32)> = tops
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .collect();
+    edges.sort_unstable();
+    for t in &tops {
+        s.triangles.push(*t);
+        s.triangles.push([t[0] + 1, t[2] + 1, t[1] + 1]);
+    }
+    // A skirt under every outline edge a → b of the top (wound so that its edges pair with the
+    // top's a → b, the bottom's b' → a' and the neighbouring skirts' verticals).
+    for &(a, b) in &edges {
+        if edges.binary_search(&(b, a)).is_err() {
+            s.triangles.push([b, a, a + 1]);
+            s.triangles.push([b, a + 1, b + 1]);
+        }
+    }
+    if s.triangles.is_empty() || !closed(&s) {
+        return None;
+    }
+    s.normals = smooth_normals(&s.positions, &s.triangles);
+    Some(s)
 }
 
 /// How one region's mesh came out of [`simplified_snow_meshes`].

@@ -152,6 +152,12 @@ pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u
             .zip(layer.probability.par_iter())
             .zip(layer.base.par_iter().zip(layer.ceiling.par_iter()))
             .map(|((s, &p), (&base, &ceiling))| {
+                // No probability (also every cell without this layer): nothing lands. Most cells
+                // of the deeper layers; the two roundings below were 22 % of a default run's
+                // instructions on the 4,960-triangle table (callgrind, session 16).
+                if p <= 0.0 {
+                    return 0;
+                }
                 let p = f64::from(p);
                 let d = ((p * b).round() - (p * a).round()).max(0.0) as u64;
                 // Not past the ceiling: snow that does not fit lands on what is above instead.

@@ -654,7 +654,7 @@ fn heldout_survey() {
         let job = registry::decode_parts(p, &bytes, Some(name), &side, &l)?;
         Ok::<_, phenomena_engine::InputError>(registry::run(&job, &NoControl).unwrap())
     };
-    println!("model | triangles | steps capped | residual | snow.glb | scene.glb | model px | changed | Δ luminance | textures in / images in scene.glb | pipeline ms (snowfall stage)");
+    println!("model | triangles | steps capped | residual | snow.glb | scene.glb | model px | changed | Δ luminance | textures in / images in scene.glb | pipeline ms (snowfall stage) | snow triangles (collapse pass, regions kept)");
     for path in files {
         let name = path.file_stem().unwrap().to_string_lossy().into_owned();
         let outs = match run(&path, json!({})) {
@@ -691,7 +691,7 @@ fn heldout_survey() {
         let images = scene["images"].as_array().map_or(0, Vec::len);
         let st = &report["stabilization"];
         println!(
-            "{name} | {} | {} of {} | {:.4} | {:.2} MB | {:.2} MB | {model} | {:.1} % | {:+.3} | {} / {images} | {:.0} ({:.0})",
+            "{name} | {} | {} of {} | {:.4} | {:.2} MB | {:.2} MB | {model} | {:.1} % | {:+.3} | {} / {images} | {:.0} ({:.0}) | {} ({}, {})",
             report["input"]["triangles"],
             st["unconverged_steps"],
             st["steps"],
@@ -708,6 +708,9 @@ fn heldout_survey() {
                 .iter()
                 .find(|t| t["stage"] == "snowfall")
                 .map_or(0.0, |t| t["ms"].as_f64().unwrap()),
+            report["snow_meshes"]["triangles"],
+            report["snow_meshes"]["collapsed"],
+            report["snow_meshes"]["collapse_kept_regions"],
         );
         std::fs::write(out.join(format!("{name}.png")), output(&outs, "render.png")).unwrap();
         std::fs::write(

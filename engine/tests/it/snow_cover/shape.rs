@@ -339,6 +339,98 @@ fn uniform_snow_on_a_plane_simplifies_to_a_few_triangles() {
     }
 }
 
+/// Snow in long thin strips (a slatted roof, a corrugated sheet: issue 18's shipping container
+/// and piano gave 4,803 and 1,522 regions whose full-resolution outlines alone exceeded the
+/// budget, 7.15 and 4.07 MB of `snow.glb`): the RTIN cannot simplify an outline, so the
+/// edge-collapse pass brings them within the budget, each strip still closed, outward, with the
+/// same volume, extent and heights (flat strips collapse at no error).
+#[test]
+fn thin_strips_over_the_budget_collapse_within_it() {
+    use phenomena_engine::snow_cover::simplify::simplified_snow_meshes;
+    let mut b = Builder::default();
+    b.floor(10.0);
+    let mesh = b.build();
+    let mut maps = build_snow_maps(&mesh, 64, &NoControl).unwrap();
+    let nx = maps.nx;
+    for (c, s) in maps.layers[0].snow.iter_mut().enumerate() {
+        // Strips two cells wide along x, two bare rows between them.
+        *s = if (c / nx) % 4 < 2 { 125_000 } else { 0 };
+    }
+    let full = snow_meshes(&maps, DEFAULT_MIN_DEPTH_M);
+    let full_tris: usize = full.iter().map(|m| m.triangles.len()).sum();
+    let (rtin, rep) = simplified_snow_meshes(&maps, DEFAULT_MIN_DEPTH_M, 0.1, 1_000_000);
+    assert!(!rep.collapsed && rep.within_budget);
+    let budget = 2_000;
+    let (meshes, rep) = simplified_snow_meshes(&maps, DEFAULT_MIN_DEPTH_M, 0.1, budget);
+    eprintln!(
+        "strips: {} regions, {full_tris} triangles at full resolution, {} by the RTIN, {} \
+         collapsed ({rep:?})",
+        full.len(),
+        rtin.iter().map(|m| m.triangles.len()).sum::<usize>(),
+        rep.triangles
+    );
+    assert_eq!(full.len(), 16);
+    assert!(rep.collapsed, "{rep:?}");
+    assert!(rep.within_budget && rep.triangles <= budget, "{rep:?}");
+    assert_eq!(rep.collapse_kept_regions, 0, "{rep:?}");
+    assert_eq!(meshes.len(), full.len(), "one mesh per region");
+    let tris: usize = meshes.iter().map(|m| m.triangles.len()).sum();
+    assert_eq!(rep.triangles, tris);
+    let extent = |m: &SnowMesh| {
+        m.positions.iter().fold(
+            ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+            |(lo, hi), p| {
+                (
+                    std::array::from_fn(|k| lo[k].min(p[k])),
+                    std::array::from_fn(|k| hi[k].max(p[k])),
+                )
+            },
+        )
+    };
+    for (f, m) in full.iter().zip(&meshes) {
+        assert_closed(&m.positions, &m.triangles, &m.name);
+        assert_unit_normals(m);
+        let (vf, vs) = (
+            signed_volume(&f.positions, &f.triangles),
+            signed_volume(&m.positions, &m.triangles),
+        );
+        assert!(
+            vs > 0.0 && (vs - vf).abs() <= 1e-4 * vf,
+            "{}: {vs} vs {vf}",
+            m.name
+        );
+        assert_eq!(extent(f), extent(m), "{}", m.name);
+        for p in &m.positions {
+            assert!((p[1] - 0.125).abs() < 1e-5 || p[1].abs() < 1e-5, "{p:?}");
+        }
+    }
+    // Isolated single cells (12 triangles each, 2 of them on top) over a budget larger than
+    // twice their tops: the collapse pass must not ask meshoptimizer for more triangles than
+    // its input has (it aborts the process), and every region stays closed.
+    for (c, s) in maps.layers[0].snow.iter_mut().enumerate() {
+        *s = if (c / nx) % 2 == 0 && (c % nx) % 2 == 0 {
+            125_000
+        } else {
+            0
+        };
+    }
+    let (meshes, rep) = simplified_snow_meshes(&maps, DEFAULT_MIN_DEPTH_M, 0.1, 5_000);
+    eprintln!("single cells: {rep:?}");
+    assert_eq!(meshes.len(), 32 * 32);
+    assert!(
+        rep.collapsed && rep.triangles <= rep.full_triangles,
+        "{rep:?}"
+    );
+    for m in &meshes {
+        assert_closed(&m.positions, &m.triangles, &m.name);
+        assert!(
+            signed_volume(&m.positions, &m.triangles) > 0.0,
+            "{}",
+            m.name
+        );
+    }
+}
+
 #[test]
 fn uniform_snow_on_a_plane_gives_a_flat_top_at_the_right_height() {
     let mut b = Builder::default();
