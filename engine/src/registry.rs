@@ -564,6 +564,10 @@ pub fn describe(job: &Job) -> serde_json::Value {
                     info["density_floor_auto"] = serde_json::to_value(c).unwrap_or_default();
                 }
                 let s = params.state.resolved(volume);
+                info["sun_direction"] = serde_json::json!(s.sun_direction);
+                if let Some(c) = &s.sun_auto {
+                    info["sun_auto"] = serde_json::to_value(c).unwrap_or_default();
+                }
                 info["kappa"] = serde_json::json!(s.kappa);
                 if let Some(c) = s.kappa_auto {
                     info["kappa_auto"] = serde_json::to_value(c).unwrap_or_default();

@@ -153,6 +153,16 @@ pub async fn create(State(st): State<AppState>, req: Request) -> Result<Response
             }
         }
     }
+    // The sun left open: the one chosen from the volume's shape ([`describe_input`]), stated
+    // with its rule, so every version of the scene renders with it.
+    if state.get("sun_direction").is_none_or(Value::is_null) {
+        if let Some(d) = info.get("sun_direction").filter(|d| d.is_array()) {
+            state.insert("sun_direction".into(), d.clone());
+            if let Some(c) = info.get("sun_auto") {
+                state.insert("sun_auto".into(), c.clone());
+            }
+        }
+    }
     // κ left open: the one the decoder chose from the volume ([`describe_input`]), stated with
     // its rule, so every version of the scene renders with it.
     if state.get("kappa").is_none_or(Value::is_null) {

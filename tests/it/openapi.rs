@@ -302,12 +302,15 @@ fn every_parameter_is_documented_with_its_default() {
         // the sun's angles become `sun_direction`), or absent from the resolved defaults
         // (`kappa_auto` exists only beside a κ chosen from the volume: the defaults leave κ
         // unchosen until a volume is decoded; so do `density_floor` and its `density_floor_auto`,
-        // left out of the resolved parameters until a volume is decoded).
+        // left out of the resolved parameters until a volume is decoded; so is the cloud's
+        // `sun_direction` left open, chosen from the volume's shape, and its `sun_auto`).
         let wire_only = [
             "sweep",
             "sun_azimuth_deg",
             "sun_elevation_deg",
             "kappa_auto",
+            "sun_direction",
+            "sun_auto",
             "density_floor",
             "density_floor_auto",
         ];

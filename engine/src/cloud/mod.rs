@@ -4,6 +4,7 @@
 //! - [`floor`]: the default density floor that takes a scan's noisy background out.
 //! - [`state`]: a version's parameters ([`CloudState`], `state.json`) and the per-voxel ambient
 //!   field ([`AmbientField`]).
+//! - [`sun`]: the default sun direction, turned to graze a slab's plane.
 //! - [`light`]: the sun transmittance on the grid, once per light direction (sheared line sweep).
 //! - [`march`]: the camera-ray march of paper Eqs. 1–3, with the linear layers Ī and A.
 //! - [`params`], [`run`]: the one-shot `cloud` pipeline.
@@ -25,6 +26,7 @@ pub mod params;
 pub mod run;
 pub mod skip;
 pub mod state;
+pub mod sun;
 
 pub use edit::job::CloudEditParams;
 pub use edit::{apply_edit, edit_outputs, edit_outputs_with, Edit, EditError, EditOutcome};

@@ -10,14 +10,18 @@ use serde::{Deserialize, Serialize};
 use super::floor::{self, FloorChoice};
 use super::kappa::{self, KappaChoice};
 use super::multiple::Scattering;
+use super::sun::{self, SunChoice};
 use crate::geom::sun_direction as sun_from_angles;
 use crate::geom::Volume;
 use crate::params::{range, Color};
 use crate::{InputError, ParamError};
 
 /// The parameters of the rendering equation (paper Eqs. 1–3) for one version of a cloud scene.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+///
+/// Serialised by [`StateOut`] (`sun_direction` left out while the sun is open, so that the
+/// canonical parameters keep it open), deserialised by [`CloudState::from_json`]'s rules.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "WireState")]
 pub struct CloudState {
     /// Extinction κ per unit density per world unit (the box's longest side is 1 world unit by
     /// default), 0–10,000. Default null: chosen from the volume so that the median optical depth
@@ -27,23 +31,30 @@ pub struct CloudState {
     /// How κ was chosen when it was chosen from the volume ([`KappaChoice`]: the rule, the
     /// optical depth aimed at, the median column density, the rays); null when κ was given.
     /// Informational: carried with `kappa`, dropped when κ is given anew. Default null.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kappa_auto: Option<KappaChoice>,
     /// Density floor taken out of every voxel before rendering (ρ ← max(0, ρ − floor)), in the
     /// volume's own density units, ≥ 0; 0 = none. Default null (left out): chosen from the
     /// volume ([`super::floor`]): a scan's noisy background (the level on the box's faces, if
     /// well below the object) is taken out, an empty background or a crop gives 0; the chosen
     /// value is written here and the rule in `density_floor_auto`. An explicit value wins.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub density_floor: Option<f64>,
     /// How the floor was chosen when it was chosen from the volume ([`FloorChoice`]: the rule,
     /// the faces' median and spread, Otsu's threshold, the object's mean); informational, carried
     /// with `density_floor`, dropped when the floor is given anew. Default null (left out).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub density_floor_auto: Option<FloorChoice>,
-    /// Unit vector toward the sun, world frame (X east, Y up, Z south). Default: azimuth 150°,
-    /// elevation 35° (`sun_azimuth_deg`/`sun_elevation_deg` are accepted on the wire instead).
+    /// Unit vector toward the sun, world frame (X east, Y up, Z south). Default (left out):
+    /// chosen from the volume ([`super::sun`]): azimuth 150°, elevation 35°, turned toward a
+    /// slab's plane to 10° above it when the cloud is a slab; the chosen value is written here
+    /// and the rule in `sun_auto` (`sun_azimuth_deg`/`sun_elevation_deg` are accepted on the
+    /// wire instead). An explicit sun wins.
     pub sun_direction: [f64; 3],
+    /// True while the sun is left open: `sun_direction` then holds the default (azimuth 150°,
+    /// elevation 35°) until [`CloudState::resolved`] chooses it from the volume. Not on the wire
+    /// (an open sun is a state without `sun_direction`).
+    pub sun_open: bool,
+    /// How the sun was chosen when it was chosen from the volume ([`SunChoice`]); informational,
+    /// carried with `sun_direction`, dropped when the sun is given anew. Default null (left out).
+    pub sun_auto: Option<SunChoice>,
     /// Sun colour I_l, linear RGB, each 0–100. Default `[1.0, 0.97, 0.92]` (warm white).
     pub sun_color: [f64; 3],
     /// Uniform ambient I_m, linear RGB, each 0–100, used wherever no ambient field exists.
@@ -68,18 +79,69 @@ pub struct CloudState {
     /// speed and stored versions of existing scenes stay as they were, and a multiple-scattering
     /// render of the same state is up to several times brighter (its sun colour means
     /// something else); choose `multiple` for thick, bright clouds.
-    #[serde(default)]
     pub scattering: Scattering,
     /// Single-scattering albedo α = σ_s/σ_t, 0–1: the share of extinction that is scattering
     /// (the rest is absorbed). Scales the sun term and the multiple-scattering term, not the
     /// painted ambient. Default 1 (cloud droplets absorb almost nothing in the visible; the
     /// paper's model).
-    #[serde(default = "default_albedo")]
     pub albedo: f64,
 }
 
-fn default_albedo() -> f64 {
-    1.0
+/// The default sun before the volume is seen: azimuth 150°, elevation 35°.
+pub const DEFAULT_SUN: [f64; 3] = [0.40957602214449584, 0.573576436351046, 0.7094064799162225];
+
+/// The serialised form of a [`CloudState`]: its fields in order, `sun_direction` left out while
+/// the sun is open, the `*_auto` statements and the floor only when present.
+#[derive(Serialize)]
+struct StateOut<'a> {
+    kappa: &'a Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    kappa_auto: Option<&'a KappaChoice>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    density_floor: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    density_floor_auto: Option<&'a FloorChoice>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sun_direction: Option<&'a [f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sun_auto: Option<&'a SunChoice>,
+    sun_color: &'a [f64; 3],
+    ambient: &'a [f64; 3],
+    ambient_scale: f64,
+    anisotropy: f64,
+    background: &'a Option<Color>,
+    step: f64,
+    scattering: Scattering,
+    albedo: f64,
+}
+
+impl Serialize for CloudState {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        StateOut {
+            kappa: &self.kappa,
+            kappa_auto: self.kappa_auto.as_ref(),
+            density_floor: self.density_floor,
+            density_floor_auto: self.density_floor_auto.as_ref(),
+            sun_direction: (!self.sun_open).then_some(&self.sun_direction),
+            sun_auto: self.sun_auto.as_ref(),
+            sun_color: &self.sun_color,
+            ambient: &self.ambient,
+            ambient_scale: self.ambient_scale,
+            anisotropy: self.anisotropy,
+            background: &self.background,
+            step: self.step,
+            scattering: self.scattering,
+            albedo: self.albedo,
+        }
+        .serialize(s)
+    }
+}
+
+impl TryFrom<WireState> for CloudState {
+    type Error = String;
+    fn try_from(w: WireState) -> Result<Self, String> {
+        Self::from_wire(w).map_err(|e| format!("{}: {}", e.field, e.detail))
+    }
 }
 
 impl Default for CloudState {
@@ -89,7 +151,9 @@ impl Default for CloudState {
             kappa_auto: None,
             density_floor: None,
             density_floor_auto: None,
-            sun_direction: sun_from_angles(150.0, 35.0),
+            sun_direction: DEFAULT_SUN,
+            sun_open: true,
+            sun_auto: None,
             sun_color: [1.0, 0.97, 0.92],
             ambient: [0.25, 0.30, 0.40],
             ambient_scale: 1.0,
@@ -111,6 +175,7 @@ pub(crate) struct WireState {
     pub density_floor: Option<f64>,
     pub density_floor_auto: Option<FloorChoice>,
     pub sun_direction: Option<[f64; 3]>,
+    pub sun_auto: Option<SunChoice>,
     pub sun_azimuth_deg: Option<f64>,
     pub sun_elevation_deg: Option<f64>,
     pub sun_color: Option<[f64; 3]>,
@@ -131,6 +196,7 @@ pub(crate) const STATE_FIELDS: &[&str] = &[
     "density_floor",
     "density_floor_auto",
     "sun_direction",
+    "sun_auto",
     "sun_azimuth_deg",
     "sun_elevation_deg",
     "sun_color",
@@ -163,6 +229,9 @@ impl CloudState {
 
     pub(crate) fn from_wire(w: WireState) -> Result<Self, ParamError> {
         let d = Self::default();
+        let sun_open = w.sun_direction.is_none()
+            && w.sun_azimuth_deg.is_none()
+            && w.sun_elevation_deg.is_none();
         let sun_direction = match (w.sun_direction, w.sun_azimuth_deg, w.sun_elevation_deg) {
             (Some(s), None, None) => crate::params::unit_vector("sun_direction", s)?,
             (None, None, None) => d.sun_direction,
@@ -209,6 +278,9 @@ impl CloudState {
             density_floor,
             density_floor_auto: w.density_floor_auto.filter(|_| density_floor.is_some()),
             sun_direction,
+            sun_open,
+            // A statement about a sun that was chosen: meaningless without that sun.
+            sun_auto: w.sun_auto.filter(|_| !sun_open),
             sun_color: color3("sun_color", w.sun_color, d.sun_color)?,
             ambient: color3("ambient", w.ambient, d.ambient)?,
             ambient_scale: range(
@@ -245,25 +317,47 @@ impl CloudState {
         }
     }
 
-    /// κ, chosen from `volume` when the state leaves it open ([`super::kappa::choose`]).
+    /// κ, chosen from `volume` when the state leaves it open ([`super::kappa::choose`], along
+    /// the sun [`CloudState::resolved`] gives).
     pub fn kappa_for(&self, volume: &Volume) -> f64 {
         match self.kappa {
             Some(k) => k,
-            None => kappa::choose(volume, self.sun_direction).0,
+            None => kappa::choose(volume, self.sun_for(volume).0).0,
         }
     }
 
-    /// The state with κ resolved: unchanged when κ is given, else κ chosen from `volume` and
-    /// the choice stated in `kappa_auto`.
+    /// The sun, chosen from `volume` when the state leaves it open ([`super::sun::choose`]),
+    /// and the statement of that choice.
+    fn sun_for(&self, volume: &Volume) -> ([f64; 3], Option<SunChoice>) {
+        if self.sun_open {
+            let (d, c) = sun::choose(volume, self.sun_direction);
+            (d, Some(c))
+        } else {
+            (self.sun_direction, self.sun_auto.clone())
+        }
+    }
+
+    /// The state with the sun and κ resolved: each unchanged when given, else chosen from
+    /// `volume` (the sun first, κ along it) and the choice stated in `sun_auto` / `kappa_auto`.
     pub fn resolved(&self, volume: &Volume) -> Self {
-        if self.kappa.is_some() {
+        if self.kappa.is_some() && !self.sun_open {
             return self.clone();
         }
-        let (k, choice) = kappa::choose(volume, self.sun_direction);
+        let (sun_direction, sun_auto) = self.sun_for(volume);
+        let s = Self {
+            sun_direction,
+            sun_open: false,
+            sun_auto,
+            ..self.clone()
+        };
+        if s.kappa.is_some() {
+            return s;
+        }
+        let (k, choice) = kappa::choose(volume, s.sun_direction);
         Self {
             kappa: Some(k),
             kappa_auto: Some(choice),
-            ..self.clone()
+            ..s
         }
     }
 
@@ -363,6 +457,17 @@ mod tests {
     fn state_defaults_round_trip_and_errors() {
         let s = CloudState::from_json(&json!({})).unwrap();
         assert_eq!(s, CloudState::default());
+        assert_eq!(DEFAULT_SUN, sun_from_angles(150.0, 35.0));
+        assert!(s.sun_open);
+        // An open sun stays open through the wire form; a given one is given.
+        assert!(serde_json::to_value(&s)
+            .unwrap()
+            .get("sun_direction")
+            .is_none());
+        let given = CloudState::from_json(&json!({"sun_direction": DEFAULT_SUN})).unwrap();
+        assert!(!given.sun_open);
+        let v = serde_json::to_value(&given).unwrap();
+        assert_eq!(CloudState::from_json(&v).unwrap(), given);
         let back = CloudState::from_json(&serde_json::to_value(&s).unwrap()).unwrap();
         assert_eq!(back, s);
         for (v, field) in [

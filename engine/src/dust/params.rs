@@ -111,8 +111,8 @@ pub struct DustParams {
     /// Dust colour, sRGB hex. Default `#e7e2da` (light grey-beige house dust; the fibres'
     /// brightness darkens it, see [`super::render::DEPTH_SHADE`]).
     pub dust_color: Color,
-    /// Close-up: the orbit camera circles the dustiest point of the surface the default view
-    /// sees (see [`super::run::close_up_target`]) instead of the mesh's centre, at
+    /// Close-up: the orbit camera circles the middle of the dustiest patch of the surface the
+    /// default view sees (see [`super::run::close_up_target`]) instead of the mesh's centre, at
     /// `camera.distance` from it (default: 1/10 of the mesh's bounding-box diagonal), so single
     /// fibres show. Needs the orbit camera (not eye/target). Default false.
     pub close_up: bool,
