@@ -29,6 +29,7 @@
 //! Cost: `O(width · height · n² · iterations)`; allocates three `width × height` `f32` grids, a
 //! mask and a validity grid, and per band `(16 + 2n)` padded rows of scratch.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 /// Rows per rayon task. Big enough to amortise the scratch row, small enough to balance 2–64 cores.
@@ -252,60 +253,79 @@ where
     out.par_chunks_mut(width * BAND_ROWS)
         .enumerate()
         .for_each_init(Scratch::default, |s, (band, rows)| {
-            let r0 = band * BAND_ROWS;
-            let r1 = r0 + rows.len() / width;
-            let lo = r0.saturating_sub(n);
-            let hi = (r1 + n).min(height);
-            s.padded.clear();
-            s.padded.resize((hi - lo) * pw, 0.0);
-            for rr in lo..hi {
-                let o = (rr - lo) * pw + n;
-                s.padded[o..o + width].copy_from_slice(&src[rr * width..(rr + 1) * width]);
-            }
-            let pad = &s.padded;
-            let mut offs = Vec::with_capacity(diamond_len(n));
-            for (k, out_row) in rows.chunks_mut(width).enumerate() {
-                let r = r0 + k;
-                // Padded index of (rr, c0 + dj) minus c0, in summation order.
-                offs.clear();
-                for rr in r.saturating_sub(n)..=(r + n).min(height - 1) {
-                    let di = rr.abs_diff(r);
-                    let base = (rr - lo) * pw + n;
-                    for j in base - (n - di)..=base + (n - di) {
-                        if di != 0 || j != base {
-                            offs.push(j);
-                        }
-                    }
-                }
-                // Two chunks at a time: eight independent add chains hide the add latency.
-                for c0 in (0..width).step_by(2 * LANES) {
-                    let mut a = [0.0f32; LANES];
-                    let mut b = [0.0f32; LANES];
-                    for &o in &offs {
-                        let o = o + c0;
-                        if let Some(Ok(s)) =
-                            pad.get(o..o + 2 * LANES).map(<&[f32; 2 * LANES]>::try_from)
-                        {
-                            for k in 0..LANES {
-                                a[k] += s[k];
-                                b[k] += s[LANES + k];
-                            }
-                        }
-                    }
-                    let m = LANES.min(width - c0);
-                    f(r, c0, &mut out_row[c0..c0 + m], &a[..m]);
-                    if c0 + LANES < width {
-                        let m = LANES.min(width - c0 - LANES);
-                        f(
-                            r,
-                            c0 + LANES,
-                            &mut out_row[c0 + LANES..c0 + LANES + m],
-                            &b[..m],
-                        );
-                    }
-                }
-            }
+            band_row_sums(src, width, height, n, pw, band, rows, s, &f);
         });
+}
+
+/// One band of [`for_each_row_sum`] (output rows `rows`, band number `band`). Compiled for AVX2
+/// too and chosen at run time (the same additions in the same order in wider registers: the
+/// same bits).
+#[multiversion(targets("x86_64+avx2"))]
+#[allow(clippy::too_many_arguments)]
+fn band_row_sums<F>(
+    src: &[f32],
+    width: usize,
+    height: usize,
+    n: usize,
+    pw: usize,
+    band: usize,
+    rows: &mut [f32],
+    s: &mut Scratch,
+    f: &F,
+) where
+    F: Fn(usize, usize, &mut [f32], &[f32]) + Sync,
+{
+    let r0 = band * BAND_ROWS;
+    let r1 = r0 + rows.len() / width;
+    let lo = r0.saturating_sub(n);
+    let hi = (r1 + n).min(height);
+    s.padded.clear();
+    s.padded.resize((hi - lo) * pw, 0.0);
+    for rr in lo..hi {
+        let o = (rr - lo) * pw + n;
+        s.padded[o..o + width].copy_from_slice(&src[rr * width..(rr + 1) * width]);
+    }
+    let pad = &s.padded;
+    let mut offs = Vec::with_capacity(diamond_len(n));
+    for (k, out_row) in rows.chunks_mut(width).enumerate() {
+        let r = r0 + k;
+        // Padded index of (rr, c0 + dj) minus c0, in summation order.
+        offs.clear();
+        for rr in r.saturating_sub(n)..=(r + n).min(height - 1) {
+            let di = rr.abs_diff(r);
+            let base = (rr - lo) * pw + n;
+            for j in base - (n - di)..=base + (n - di) {
+                if di != 0 || j != base {
+                    offs.push(j);
+                }
+            }
+        }
+        // Two chunks at a time: eight independent add chains hide the add latency.
+        for c0 in (0..width).step_by(2 * LANES) {
+            let mut a = [0.0f32; LANES];
+            let mut b = [0.0f32; LANES];
+            for &o in &offs {
+                let o = o + c0;
+                if let Some(Ok(s)) = pad.get(o..o + 2 * LANES).map(<&[f32; 2 * LANES]>::try_from) {
+                    for k in 0..LANES {
+                        a[k] += s[k];
+                        b[k] += s[LANES + k];
+                    }
+                }
+            }
+            let m = LANES.min(width - c0);
+            f(r, c0, &mut out_row[c0..c0 + m], &a[..m]);
+            if c0 + LANES < width {
+                let m = LANES.min(width - c0 - LANES);
+                f(
+                    r,
+                    c0 + LANES,
+                    &mut out_row[c0 + LANES..c0 + LANES + m],
+                    &b[..m],
+                );
+            }
+        }
+    }
 }
 
 #[cfg(test)]
