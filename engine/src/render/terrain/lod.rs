@@ -404,9 +404,8 @@ mod tests {
     fn level_by_thresholds_is_log2() {
         let thr = level_thresholds();
         let by_log = |f: f64, n: usize| (f.log2() as usize).min(n);
-        let by_thr = |f: f64, n: usize| -> usize {
-            thr[..n].iter().map(|&x| usize::from(f >= x)).sum()
-        };
+        let by_thr =
+            |f: f64, n: usize| -> usize { thr[..n].iter().map(|&x| usize::from(f >= x)).sum() };
         let mut fs = vec![2.0, 3.0, 1e3, 1e300, f64::INFINITY, f64::MAX];
         for l in 1..=MAX_LEVEL + 1 {
             let p = (1u64 << l) as f64;
@@ -458,7 +457,14 @@ mod tests {
         let mut hs: Vec<f32> = (0..w * h)
             .map(|k| (((k % w) as f32 * 0.3).sin() + (k / w) as f32 * 0.2) * 50.0)
             .collect();
-        for k in [5 * w + 7, 12 * w + 20, 12 * w + 21, 13 * w + 20, 13 * w + 21, 29 * w + 39] {
+        for k in [
+            5 * w + 7,
+            12 * w + 20,
+            12 * w + 21,
+            13 * w + 20,
+            13 * w + 21,
+            29 * w + 39,
+        ] {
             hs[k] = f32::NAN;
         }
         let lod = ShadeLod::new(&hs, false, None, w, h, 30.0, 25.0, 1.0, 64.0).unwrap();
