@@ -271,9 +271,9 @@ impl ShadeLod {
                     {
                         *g = [(b - a) / two_sx, (d - u) / two_sz];
                     }
-                    for c in 1..nw - 1 {
-                        if row[c][0].is_nan() || row[c][1].is_nan() {
-                            row[c] = level_gradient(hn, nw, nh, l, dx, dy, c, r);
+                    for (c, g) in row.iter_mut().enumerate().take(nw - 1).skip(1) {
+                        if g[0].is_nan() || g[1].is_nan() {
+                            *g = level_gradient(hn, nw, nh, l, dx, dy, c, r);
                         }
                     }
                     row[0] = level_gradient(hn, nw, nh, l, dx, dy, 0, r);
