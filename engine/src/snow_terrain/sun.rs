@@ -27,6 +27,7 @@
 //! Cost: 4 triangles per quad, ~60 flops each;
 //! allocates per-band scratch.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 use std::f32::consts::{FRAC_PI_2, PI};
 
@@ -168,6 +169,9 @@ const SE: usize = 2;
 const SW: usize = 3;
 
 /// Corner sums of the quads in quad row `q` (rows q and q + 1), or zeros if `q` is outside.
+/// Compiled for AVX2 too and chosen at run time (the same operations in wider registers, no
+/// FMA: the same bits).
+#[multiversion(targets("x86_64+avx2"))]
 #[allow(clippy::too_many_arguments)]
 fn quad_row(
     k: &Kernel,

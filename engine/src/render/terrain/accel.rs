@@ -173,6 +173,18 @@ impl<'a> TerrainAccel<'a> {
         let s0 = (1u64 << level) as f64;
         let mut ci = (((r.ou + r.du * t0) / s0).floor().max(0.0) as usize).min(lw - 1);
         let mut cj = (((r.ov + r.dv * t0) / s0).floor().max(0.0) as usize).min(lh - 1);
+        // Rays oblique to both grid axes (all but a few) take the walk specialised to their
+        // direction (`walk`): the same node visits and the same values, fewer instructions.
+        const BIG: f64 = 1e290;
+        if r.inv_du.abs() < BIG && r.inv_dv.abs() < BIG && r.du != 0.0 && r.dv != 0.0 {
+            let start = (level, ci, cj, t0, t1);
+            return match (r.du > 0.0, r.dv > 0.0) {
+                (true, true) => self.walk::<true, true>(&r, start, tmin, tmax),
+                (true, false) => self.walk::<true, false>(&r, start, tmin, tmax),
+                (false, true) => self.walk::<false, true>(&r, start, tmin, tmax),
+                (false, false) => self.walk::<false, false>(&r, start, tmin, tmax),
+            };
+        }
         let mut t = t0;
         loop {
             let s = (1u64 << level) as f64;
@@ -214,6 +226,84 @@ impl<'a> TerrainAccel<'a> {
                 level += 1;
                 ci >>= 1;
                 cj >>= 1;
+            }
+        }
+    }
+
+    /// The pyramid walk of [`Self::intersect`] for a ray with `du`, `dv` non-zero and finite
+    /// reciprocals, `XP`/`ZP` = `du > 0` / `dv > 0`, from `(level, ci, cj, t0, t1)`: the same
+    /// node visits and the same floating-point values as the general loop there, with the
+    /// direction's branches resolved at compile time, the node size `s` kept (halved and
+    /// doubled: exact) instead of converted from the level per visit, the ray's height at the
+    /// entry `t` kept between visits, and plain comparisons for `min`/`max` (no operand is NaN:
+    /// every `t` is finite).
+    #[inline]
+    fn walk<const XP: bool, const ZP: bool>(
+        &self,
+        r: &GridRay,
+        (mut level, mut ci, mut cj, t0, t1): (usize, usize, usize, f64, f64),
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        let top = self.levels.len();
+        let min = |a: f64, b: f64| if b < a { b } else { a };
+        let max = |a: f64, b: f64| if b > a { b } else { a };
+        let (ox, oz) = (u32::from(XP), u32::from(ZP));
+        let mut s = (1u64 << level) as f64;
+        let (mut w, mut h) = self.dims(level);
+        let mut t = t0;
+        let mut yt = r.oy + r.dy * t;
+        loop {
+            // exit_t: the node's far side along each axis.
+            let tx = (f64::from(ci as u32 + ox) * s - r.ou) * r.inv_du;
+            let tz = (f64::from(cj as u32 + oz) * s - r.ov) * r.inv_dv;
+            let texit = min(tx, tz);
+            let tend = min(texit, t1);
+            let yend = r.oy + r.dy * tend;
+            if level == 0 {
+                if let Some(hit) =
+                    self.cell_hit(ci, cj, r, min(yt, yend), max(yt, yend), tmin, tmax)
+                {
+                    return Some(hit);
+                }
+            } else {
+                let lv = &self.levels[level - 1];
+                let m = f64::from(lv.max[cj * lv.w + ci]);
+                if min(yt, yend) <= m + self.eps_y {
+                    // Descend into the child holding the ray at `t` (`child`, ties toward the
+                    // direction of travel).
+                    level -= 1;
+                    (w, h) = self.dims(level);
+                    let half = s * 0.5;
+                    let (pu, pv) = (r.ou + r.du * t, r.ov + r.dv * t);
+                    let (mu, mv) = (
+                        f64::from(2 * ci as u32 + 1) * half,
+                        f64::from(2 * cj as u32 + 1) * half,
+                    );
+                    ci = (2 * ci + usize::from(pu > mu || (pu == mu && XP))).min(w - 1);
+                    cj = (2 * cj + usize::from(pv > mv || (pv == mv && ZP))).min(h - 1);
+                    s = half;
+                    continue;
+                }
+            }
+            if texit >= t1 {
+                return None;
+            }
+            t = texit;
+            yt = yend;
+            let mut new_parent = false;
+            if tx <= tz {
+                new_parent |= step_axis(&mut ci, XP, w)?;
+            }
+            if tz <= tx {
+                new_parent |= step_axis(&mut cj, ZP, h)?;
+            }
+            if new_parent && level < top {
+                level += 1;
+                ci >>= 1;
+                cj >>= 1;
+                s *= 2.0;
+                (w, h) = self.dims(level);
             }
         }
     }

@@ -28,6 +28,7 @@
 //! below what shows, and 4096² would otherwise take 67 MB of floats. Deterministic and independent
 //! of the thread count (each point is computed alone).
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::control::{Canceled, Control};
@@ -169,6 +170,7 @@ pub fn sky_view_factor(
     // direction's march ends at its first sample off the grid, and the points for which a step
     // stays on the grid are a range that only shrinks as the step grows. Scratch: four `f64`
     // and two `f32` rows per rayon task (`try_for_each_init`), nothing per row.
+    let g = Grid { hs, w, h, cdx, cdy };
     data.par_chunks_mut(w.max(1))
         .enumerate()
         .try_for_each_init(
@@ -177,94 +179,7 @@ pub fn sky_view_factor(
                 if j % 16 == 0 {
                     ctl.checkpoint()?;
                 }
-                let (gx, rest) = scratch.split_at_mut(w);
-                let (gz, rest) = rest.split_at_mut(w);
-                let (tan, sum_sin) = rest.split_at_mut(w);
-                let (best, tan32) = scratch32.split_at_mut(w);
-                let h_row = &hs[j * w..(j + 1) * w];
-                // Central-difference gradient (one-sided at borders and next to nodata).
-                let at = |ci: usize, cj: usize| f64::from(hs[cj * w + ci]);
-                let diff = |c: f64, lo: Option<f64>, hi: Option<f64>, step: f64| -> f64 {
-                    match (lo.filter(|v| !v.is_nan()), hi.filter(|v| !v.is_nan())) {
-                        (Some(a), Some(b)) => (b - a) / (2.0 * step),
-                        (Some(a), None) => (c - a) / step,
-                        (None, Some(b)) => (b - c) / step,
-                        (None, None) => 0.0,
-                    }
-                };
-                for i in 0..w {
-                    let c = f64::from(h_row[i]);
-                    gx[i] = diff(
-                        c,
-                        (i > 0).then(|| at(i - 1, j)),
-                        (i + 1 < w).then(|| at(i + 1, j)),
-                        cdx,
-                    );
-                    gz[i] = diff(
-                        c,
-                        (j > 0).then(|| at(i, j - 1)),
-                        (j + 1 < h).then(|| at(i, j + 1)),
-                        cdy,
-                    );
-                }
-                sum_sin.fill(0.0);
-                let sin = |t: f64| t / (1.0 + t * t).sqrt();
-                for &(di, dj, len, steps) in &dirs {
-                    // tan τ of the tangent plane along this azimuth.
-                    for (((t, t32), b), (&gx, &gz)) in tan
-                        .iter_mut()
-                        .zip(tan32.iter_mut())
-                        .zip(best.iter_mut())
-                        .zip(gx.iter().zip(gz.iter()))
-                    {
-                        *t = (gx * di as f64 * cdx + gz * dj as f64 * cdy) / len;
-                        *t32 = *t as f32;
-                        *b = *t32;
-                    }
-                    for &k in &STEPS[..steps] {
-                        let cj = j as isize + dj * k as isize;
-                        if cj < 0 || cj >= h as isize {
-                            break;
-                        }
-                        // Points i with 0 ≤ i + di·k < w.
-                        let off = di * k as isize;
-                        let (i0, i1) = (
-                            (-off).clamp(0, w as isize) as usize,
-                            (w as isize - off).clamp(0, w as isize) as usize,
-                        );
-                        if i0 >= i1 {
-                            break;
-                        }
-                        let src = &hs[cj as usize * w..(cj as usize + 1) * w];
-                        let src = &src[(i0 as isize + off) as usize..(i1 as isize + off) as usize];
-                        let dist = (k as f64 * len) as f32;
-                        for ((b, &h0), &hk) in best[i0..i1].iter_mut().zip(&h_row[i0..i1]).zip(src)
-                        {
-                            let t = (hk - h0) / dist;
-                            // NaN (nodata) fails the compare. A select, not a branch, so
-                            // that the loop vectorises (the branch's conditional store kept
-                            // it scalar).
-                            *b = if t > *b { t } else { *b };
-                        }
-                    }
-                    for (((acc, &b), &t32), &t) in sum_sin
-                        .iter_mut()
-                        .zip(best.iter())
-                        .zip(tan32.iter())
-                        .zip(tan.iter())
-                    {
-                        // Unoccluded (no sample above the tangent plane): exactly 0.
-                        if b > t32 {
-                            *acc += sin(f64::from(b)) - sin(t);
-                        }
-                    }
-                }
-                for ((out, &h0), &s) in row.iter_mut().zip(h_row).zip(sum_sin.iter()) {
-                    if !h0.is_nan() {
-                        let svf = 1.0 - s / DIRS.len() as f64;
-                        *out = (255.0 * svf.clamp(0.0, 1.0)).round() as u8;
-                    }
-                }
+                svf_row(&g, &dirs, j, row, scratch, scratch32);
                 Ok(())
             },
         )?;
@@ -274,6 +189,144 @@ pub fn sky_view_factor(
         height: h,
         data,
     })
+}
+
+/// The (coarse) grid the SVF is computed on.
+struct Grid<'a> {
+    hs: &'a [f32],
+    w: usize,
+    h: usize,
+    /// Cell sizes, world units.
+    cdx: f64,
+    cdy: f64,
+}
+
+/// One-sided or central difference (the gradient rule of the module doc): `c` the point's
+/// height, `lo`/`hi` its neighbours (`None` off the grid, NaN = nodata), `step` the spacing.
+#[inline]
+fn diff(c: f64, lo: Option<f64>, hi: Option<f64>, step: f64) -> f64 {
+    match (lo.filter(|v| !v.is_nan()), hi.filter(|v| !v.is_nan())) {
+        (Some(a), Some(b)) => (b - a) / (2.0 * step),
+        (Some(a), None) => (c - a) / step,
+        (None, Some(b)) => (b - c) / step,
+        (None, None) => 0.0,
+    }
+}
+
+/// Row `j` of the map into `row` (see `sky_view_factor`); `scratch` holds four `f64` rows and
+/// `scratch32` two `f32` rows of the grid's width. Compiled for AVX2 too and chosen at run time
+/// (the same floating-point operations in wider registers, no FMA: the same bits).
+#[multiversion(targets("x86_64+avx2"))]
+fn svf_row<'a>(
+    g: &Grid<'a>,
+    dirs: &[(isize, isize, f64, usize)],
+    j: usize,
+    row: &mut [u8],
+    scratch: &mut [f64],
+    scratch32: &mut [f32],
+) {
+    let Grid { hs, w, h, cdx, cdy } = *g;
+    let (gx, rest) = scratch.split_at_mut(w);
+    let (gz, rest) = rest.split_at_mut(w);
+    let (tan, sum_sin) = rest.split_at_mut(w);
+    let (best, tan32) = scratch32.split_at_mut(w);
+    let h_row = &hs[j * w..(j + 1) * w];
+    // Central-difference gradient (one-sided at borders and next to nodata): interior points
+    // straight from the three rows; a NaN neighbour makes the difference NaN, and those points
+    // (and the borders) take `diff`.
+    let at = |ci: usize, cj: usize| f64::from(hs[cj * w + ci]);
+    let interior = j > 0 && j + 1 < h && w >= 3;
+    if interior {
+        let (up, dn) = (
+            &hs[(j - 1) * w + 1..j * w - 1],
+            &hs[(j + 1) * w + 1..(j + 2) * w - 1],
+        );
+        for ((((gx, gz), (&a, &b)), &u), &d) in gx[1..w - 1]
+            .iter_mut()
+            .zip(gz[1..w - 1].iter_mut())
+            .zip(h_row[..w - 2].iter().zip(&h_row[2..]))
+            .zip(up)
+            .zip(dn)
+        {
+            *gx = (f64::from(b) - f64::from(a)) / (2.0 * cdx);
+            *gz = (f64::from(d) - f64::from(u)) / (2.0 * cdy);
+        }
+    }
+    for i in 0..w {
+        if interior && i > 0 && i + 1 < w && !gx[i].is_nan() && !gz[i].is_nan() {
+            continue;
+        }
+        let c = f64::from(h_row[i]);
+        gx[i] = diff(
+            c,
+            (i > 0).then(|| at(i - 1, j)),
+            (i + 1 < w).then(|| at(i + 1, j)),
+            cdx,
+        );
+        gz[i] = diff(
+            c,
+            (j > 0).then(|| at(i, j - 1)),
+            (j + 1 < h).then(|| at(i, j + 1)),
+            cdy,
+        );
+    }
+    sum_sin.fill(0.0);
+    let sin = |t: f64| t / (1.0 + t * t).sqrt();
+    for &(di, dj, len, steps) in dirs {
+        // tan τ of the tangent plane along this azimuth.
+        for (((t, t32), b), (&gx, &gz)) in tan
+            .iter_mut()
+            .zip(tan32.iter_mut())
+            .zip(best.iter_mut())
+            .zip(gx.iter().zip(gz.iter()))
+        {
+            *t = (gx * di as f64 * cdx + gz * dj as f64 * cdy) / len;
+            *t32 = *t as f32;
+            *b = *t32;
+        }
+        for &k in &STEPS[..steps] {
+            let cj = j as isize + dj * k as isize;
+            if cj < 0 || cj >= h as isize {
+                break;
+            }
+            // Points i with 0 ≤ i + di·k < w.
+            let off = di * k as isize;
+            let (i0, i1) = (
+                (-off).clamp(0, w as isize) as usize,
+                (w as isize - off).clamp(0, w as isize) as usize,
+            );
+            if i0 >= i1 {
+                break;
+            }
+            let src = &hs[cj as usize * w..(cj as usize + 1) * w];
+            let src = &src[(i0 as isize + off) as usize..(i1 as isize + off) as usize];
+            let dist = (k as f64 * len) as f32;
+            for ((b, &h0), &hk) in best[i0..i1].iter_mut().zip(&h_row[i0..i1]).zip(src) {
+                let t = (hk - h0) / dist;
+                // NaN (nodata) fails the compare. A select, not a branch, so that the loop
+                // vectorises (the branch's conditional store kept it scalar).
+                *b = if t > *b { t } else { *b };
+            }
+        }
+        for (((acc, &b), &t32), &t) in sum_sin
+            .iter_mut()
+            .zip(best.iter())
+            .zip(tan32.iter())
+            .zip(tan.iter())
+        {
+            // Unoccluded (no sample above the tangent plane): nothing, as a select of 0 so
+            // that the loop vectorises (`acc + 0.0` is `acc` up to the sign of a zero sum,
+            // which the factor below does not see).
+            let occluded = sin(f64::from(b)) - sin(t);
+            *acc += if b > t32 { occluded } else { 0.0 };
+        }
+    }
+    for ((out, &h0), &s) in row.iter_mut().zip(h_row).zip(sum_sin.iter()) {
+        if !h0.is_nan() {
+            let svf = 1.0 - s / DIRS.len() as f64;
+            *out = (255.0 * svf.clamp(0.0, 1.0)).round() as u8;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -202,6 +202,7 @@ pub fn prepare_view(
             let footprint_per_t = 2.0 * camera.tan_half_fov() / h as f64 / accel.cell;
             Ok::<_, Canceled>(ShadeLod::new(
                 sc.heights,
+                !holes,
                 sun_map.as_deref(),
                 sc.width,
                 sc.height,
