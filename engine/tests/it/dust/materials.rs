@@ -312,7 +312,12 @@ fn heldout_survey() {
             output(&dusty, "dust_amount.png"),
         )
         .unwrap();
-        for (suffix, outs) in [("", &dusty), ("_clean", &clean), ("_close", &near)] {
+        for (suffix, outs) in [
+            ("", &dusty),
+            ("_clean", &clean),
+            ("_close", &near),
+            ("_close_clean", &near_clean),
+        ] {
             std::fs::write(
                 out.join(format!("{name}{suffix}.png")),
                 output(outs, "render.png"),
