@@ -145,12 +145,13 @@ impl Bound {
         self.epoch += 1;
     }
 
-    #[inline]
-    fn get(&self, maps: &SnowMaps, nl: usize, idx: usize) -> u32 {
+    /// U at `idx` = (c, k).
+    #[inline(always)]
+    fn get(&self, maps: &SnowMaps, idx: usize, c: usize, k: usize) -> u32 {
         if self.written[idx] == self.epoch {
             self.lb[idx]
         } else {
-            maps.layers[idx % nl].snow[idx / nl]
+            maps.layers[k].snow[c]
         }
     }
 
@@ -162,9 +163,9 @@ impl Bound {
 
     /// Fix U at `idx` before the cell's snow changes.
     #[inline]
-    fn materialize(&mut self, maps: &SnowMaps, nl: usize, idx: usize) {
+    fn materialize(&mut self, maps: &SnowMaps, idx: usize, c: usize, k: usize) {
         if self.written[idx] != self.epoch {
-            let v = maps.layers[idx % nl].snow[idx / nl];
+            let v = maps.layers[k].snow[c];
             self.set(idx, v);
         }
     }
@@ -299,7 +300,7 @@ impl Router {
                     if l2.snow[c2] >= cap2 {
                         continue;
                     }
-                    let s2 = lb.get(maps, nl, idx2).min(cap2);
+                    let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
                     units_floor(
                         (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime)
                             / SNOW_UNIT_M,
@@ -374,7 +375,6 @@ impl Router {
         maps: &SnowMaps,
         filter: &SeedFilter,
         cap: &[u32],
-        lb: &Bound,
         nl: usize,
         idx: usize,
         i: usize,
@@ -394,14 +394,14 @@ impl Router {
         }
         let links = l.links[c];
         let thr = filter.thr[idx];
+        // `keep` as `keep_cap` computes it (U = D = the snow here: nothing is eroded yet), but
+        // only over the links that fail their pre-test: the others give more than `s`, so they
+        // do not lower the minimum when the cell is a seed (and `keep` is not used otherwise).
+        let mut keep = lim;
+        let bc = f64::from(l.base[c]);
         for d in 0..4 {
             let k2 = links[d];
             if k2 == LINK_WALL || k2 == LINK_LOST {
-                continue;
-            }
-            if thr[d] == i32::MIN {
-                test = true;
-                allowed = -1.0;
                 continue;
             }
             let (di, dj) = NEIGHBOURS[d];
@@ -409,19 +409,25 @@ impl Router {
             let k2 = usize::from(k2);
             let l2 = &maps.layers[k2];
             let s2 = l2.snow[c2];
-            if s2 >= cap[c2 * nl + k2] {
+            let cap2 = cap[c2 * nl + k2];
+            if s2 >= cap2 {
                 continue;
             }
-            let slack = i64::from(thr[d]) - (i64::from(s) - i64::from(s2));
-            test |= slack < 0;
+            let slack = if thr[d] == i32::MIN {
+                -1
+            } else {
+                i64::from(thr[d]) - (i64::from(s) - i64::from(s2))
+            };
+            if slack < 0 {
+                test = true;
+                keep = keep.min(units_floor(
+                    (f64::from(l2.base[c2]) - bc + f64::from(s2.min(cap2)) * SNOW_UNIT_M + t_prime)
+                        / SNOW_UNIT_M,
+                ));
+            }
             allowed = allowed.min(allowance(slack - 3, p - rate(l2.probability[c2])));
         }
-        let seed = if s > 0 && test {
-            let keep = Self::keep_cap(maps, lb, cap, nl, k, i, j, t_prime);
-            (s > keep).then_some(keep)
-        } else {
-            None
-        };
+        let seed = (s > 0 && test && s > keep).then_some(keep);
         (seed, allowed)
     }
 
@@ -449,7 +455,11 @@ impl Router {
             hi = hi.max(b);
             cum.push(hi);
         }
-        let now = clock.cum.get(n.wrapping_sub(1)).copied().unwrap_or(f64::NAN);
+        let now = clock
+            .cum
+            .get(n.wrapping_sub(1))
+            .copied()
+            .unwrap_or(f64::NAN);
         let due_after = |allowed: f64, seed: bool| -> u32 {
             if seed || !now.is_finite() || !(allowed >= 0.0) {
                 return (n + 1) as u32;
@@ -462,7 +472,7 @@ impl Router {
                 (n + 1 + off) as u32
             }
         };
-        let (lb, cap, filter) = (&self.lb, &self.cap, &self.filter);
+        let (cap, filter) = (&self.cap, &self.filter);
         if !self.scheduled || self.buckets.len() != cum.len() + 2 {
             // Every cell (rayon over rows).
             let tests: Vec<(u32, Option<u32>, u32)> = (0..self.nz)
@@ -478,7 +488,7 @@ impl Router {
                                 continue;
                             }
                             let (seed, allowed) =
-                                Self::seed_test(maps, filter, cap, lb, nl, idx, i, j, t_prime);
+                                Self::seed_test(maps, filter, cap, nl, idx, i, j, t_prime);
                             row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
                         }
                     }
@@ -509,8 +519,7 @@ impl Router {
             {
                 // A cell and layer with no room holds no snow and never will (deposits and
                 // moves stop at the capacity): never a seed.
-                if !self.listed[idx] && (cap[idx] > 0 || maps.layers[idx % nl].snow[idx / nl] > 0)
-                {
+                if !self.listed[idx] && (cap[idx] > 0 || maps.layers[idx % nl].snow[idx / nl] > 0) {
                     self.listed[idx] = true;
                     list.push(idx as u32);
                 }
@@ -531,7 +540,6 @@ impl Router {
                         maps,
                         filter,
                         cap,
-                        lb,
                         nl,
                         idx as usize,
                         c % nx,
@@ -620,7 +628,7 @@ impl Router {
         while let Some(Reverse(key)) = self.min_heap.pop() {
             let idx = key_index(key);
             let (c, k) = (idx / nl, idx % nl);
-            if Self::surface_key(maps, k, c, self.lb.get(maps, nl, idx), idx) != key {
+            if Self::surface_key(maps, k, c, self.lb.get(maps, idx, c, k), idx) != key {
                 continue; // stale
             }
             let l = &maps.layers[k];
@@ -630,7 +638,7 @@ impl Router {
             }
             let (i, j) = (c % nx, c / nx);
             let top = f64::from(l.base[c])
-                + f64::from(self.lb.get(maps, nl, idx).min(l.capacity(c))) * SNOW_UNIT_M
+                + f64::from(self.lb.get(maps, idx, c, k).min(self.cap[idx])) * SNOW_UNIT_M
                 + t_prime;
             for (d, &(di, dj)) in NEIGHBOURS.iter().enumerate() {
                 let (i2, j2) = (i as isize + di, j as isize + dj);
@@ -642,7 +650,7 @@ impl Router {
                 for k3 in 0..nl {
                     let l3 = &maps.layers[k3];
                     let idx3 = c2 * nl + k3;
-                    let lb3 = self.lb.get(maps, nl, idx3);
+                    let lb3 = self.lb.get(maps, idx3, c2, k3);
                     if lb3 == 0 || usize::from(l3.links[c2][back]) != k {
                         continue;
                     }
@@ -664,7 +672,7 @@ impl Router {
         for n in 0..self.eroded.len() {
             let idx = self.eroded[n] as usize;
             let (c, k) = (idx / nl, idx % nl);
-            if self.queued[idx] || maps.layers[k].snow[c] <= self.lb.get(maps, nl, idx) {
+            if self.queued[idx] || maps.layers[k].snow[c] <= self.lb.get(maps, idx, c, k) {
                 continue;
             }
             self.queued[idx] = true;
@@ -684,14 +692,14 @@ impl Router {
                 let (i, j) = (c % nx, c / nx);
                 // The snow in transit arrives (it rests here from now on, or moves on); U here
                 // is fixed first (it was D, the snow before this call).
-                self.lb.materialize(maps, nl, idx);
+                self.lb.materialize(maps, idx, c, k);
                 let s = maps.layers[k].snow[c].saturating_add(self.pending[idx]);
                 maps.layers[k].snow[c] = s;
                 self.pending[idx] = 0;
                 let cap = Self::keep_cap(maps, &self.lb, &self.cap, nl, k, i, j, t_prime);
                 if s <= cap {
                     // It keeps all it has, for good (a lower bound of its final snow).
-                    let v = self.lb.get(maps, nl, idx).max(s);
+                    let v = self.lb.get(maps, idx, c, k).max(s);
                     self.lb.set(idx, v);
                     continue;
                 }
@@ -885,7 +893,7 @@ impl Router {
                 }
                 let gone = (e - left) as u32;
                 // What it keeps (up to K) it keeps for good: a lower bound of its final snow.
-                let v = self.lb.get(maps, nl, idx).max(cap);
+                let v = self.lb.get(maps, idx, c, k).max(cap);
                 self.lb.set(idx, v);
                 if gone == 0 {
                     continue;

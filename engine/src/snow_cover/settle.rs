@@ -238,7 +238,10 @@ impl Settler {
     /// If `maps` does not have the shape this workspace was made for.
     pub(super) fn drops(&self, maps: &SnowMaps, repose_deg: f32) -> (f32, f32) {
         assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
-        (repose_drop(maps.cell, repose_deg), self.tolerance * maps.cell)
+        (
+            repose_drop(maps.cell, repose_deg),
+            self.tolerance * maps.cell,
+        )
     }
 
     /// Stabilize `maps` (module doc) with repose angle `repose_deg` (degrees, in (0, 90)) for at

@@ -205,7 +205,11 @@ struct Deposit {
 impl Deposit {
     fn new(maps: &SnowMaps) -> Self {
         Self {
-            prev: maps.layers.iter().map(|l| vec![0.0; l.snow.len()]).collect(),
+            prev: maps
+                .layers
+                .iter()
+                .map(|l| vec![0.0; l.snow.len()])
+                .collect(),
             cap: maps
                 .layers
                 .iter()
@@ -306,7 +310,10 @@ pub fn simulate(
     let mut router = Router::new(&maps);
     let mut deposit = Deposit::new(&maps);
     let steps = p.steps.max(1);
-    let at = |n: usize| p.snowfall.cumulative(p.duration_h * n as f64 / steps as f64);
+    let at = |n: usize| {
+        p.snowfall
+            .cumulative(p.duration_h * n as f64 / steps as f64)
+    };
     // Each step's cumulative snowfall `after`, in units, as the deposit computes it.
     let cum: Vec<f64> = (1..=steps).map(|n| at(n) / SNOW_UNIT_M).collect();
     let mut fallen = 0u64;
