@@ -40,6 +40,17 @@
 //!    ([`super::settle`]'s outflow); any that would still move snow seed the height-ordered
 //!    sweep, which settles them (the paper's levelling) and confirms.
 //!
+//! **Seed search** (which cells start the erosion). A seed is a cell with snow above what it
+//! could keep against its neighbours' D. Instead of testing every cell each step, each test
+//! (integer pre-tests, then the exact cap only over the links that fail them:
+//! [`Router::seed_test`]) also yields how much more snow may fall before its answer can change:
+//! a step's deposit is `round(P·b′) − round(P·b)` units, so over any run of steps the drop toward
+//! a neighbour grows by at most `(P − P₂)·Δb + 2`. The cell is tested again at the first step
+//! past that, or at the next step when it or a neighbour was moved (the routing's touched cells
+//! and their neighbours), or when it was a seed; every cell is tested on the first step, after P
+//! changes, after a fallback sweep, and when the moved cells are a large share of all. The seeds
+//! found are the same as testing every cell (bit-identical outputs; BENCHMARKS.md, session 17).
+//!
 //! Mass: integer units throughout ([`super::maps::SNOW_UNIT_M`]); every transfer is exact, so
 //! `fallen = resting + lost` to the unit. Both passes are serial with a total order (surface,
 //! then cell and layer index), so the result does not depend on the thread count; the seed
@@ -97,6 +108,8 @@ pub(super) struct Router {
     scheduled: bool,
     /// The cells and layers tested in this step, and each one's (seed keep, next due step).
     tests: Vec<(u32, Option<u32>, u32)>,
+    /// Cells (of any layer) the last full seed search tested, about.
+    tests_full: usize,
     /// The seed search's list of cells and layers to test, and per `c · layers + k`: on it.
     list: Vec<u32>,
     listed: Vec<bool>,
@@ -253,6 +266,7 @@ impl Router {
             moved: Vec::new(),
             scheduled: false,
             tests: Vec::new(),
+            tests_full: 0,
             list: Vec::new(),
             listed: vec![false; n * nl],
             queued: vec![false; n * nl],
@@ -473,7 +487,10 @@ impl Router {
             }
         };
         let (cap, filter) = (&self.cap, &self.filter);
-        if !self.scheduled || self.buckets.len() != cum.len() + 2 {
+        // Every cell when the moved cells are a large share of them (the Stanford bunny: most
+        // of its flanks move every step): a pass in row order costs less than the list.
+        let many = self.moved.len().saturating_mul(2) > self.tests_full;
+        if !self.scheduled || many || self.buckets.len() != cum.len() + 2 {
             // Every cell (rayon over rows).
             let tests: Vec<(u32, Option<u32>, u32)> = (0..self.nz)
                 .into_par_iter()
@@ -496,6 +513,7 @@ impl Router {
                 })
                 .collect();
             self.tests = tests;
+            self.tests_full = self.tests.len() / nl.max(1);
             self.due.iter_mut().for_each(|d| *d = NEVER);
             self.buckets = vec![Vec::new(); cum.len() + 2];
             self.moved.clear();
@@ -566,33 +584,6 @@ impl Router {
     /// The seed search's schedule no longer holds (P changed): the next search tests every cell.
     pub(super) fn reschedule(&mut self) {
         self.scheduled = false;
-    }
-
-    /// `cells` (`j · nx + i`) were moved outside [`Router::route`] (the sweep): they and their
-    /// neighbours are tested at the next seed search.
-    pub(super) fn cells_moved(&mut self, cells: &[u32]) {
-        for &c in cells {
-            self.mark_moved(c as usize);
-        }
-    }
-
-    /// Cell `c` and its 4 neighbours to the next seed search.
-    fn mark_moved(&mut self, c: usize) {
-        let (nx, nz) = (self.nx, self.nz);
-        let (i, j) = (c % nx, c / nx);
-        self.moved.push(c as u32);
-        if i > 0 {
-            self.moved.push((c - 1) as u32);
-        }
-        if i + 1 < nx {
-            self.moved.push((c + 1) as u32);
-        }
-        if j > 0 {
-            self.moved.push((c - nx) as u32);
-        }
-        if j + 1 < nz {
-            self.moved.push((c + nx) as u32);
-        }
     }
 
     /// Erosion then routing (module doc) with repose drop `t_drop` and tolerance `tol` (metres),

@@ -197,9 +197,6 @@ pub struct Settler {
     requeued: std::collections::BinaryHeap<u64>,
     /// Per cell and layer: in the sweep's queue.
     queued: Vec<bool>,
-    /// When set, the sweeps append every cell whose snow they change (givers and receivers;
-    /// repeats possible): the model's seed search tests those again ([`super::route`]).
-    pub(super) moved_log: Option<Vec<u32>>,
 }
 
 impl Settler {
@@ -228,7 +225,6 @@ impl Settler {
             order: Vec::new(),
             requeued: std::collections::BinaryHeap::new(),
             queued: vec![false; nx * nz * maps.layers.len()],
-            moved_log: None,
         }
     }
 
@@ -603,9 +599,6 @@ impl Settler {
             moved += u64::from(gone);
             lost += l;
             maps.layers[k].snow[c] -= gone;
-            if let Some(log) = &mut self.moved_log {
-                log.push(c as u32);
-            }
             self.changed[(j / TILE) * tx + i / TILE] = true;
             mark(&mut self.dirty_next, nx, nz, i, j);
             let links = maps.layers[k].links[c];
@@ -625,9 +618,6 @@ impl Settler {
                     l2.snow[c2] += take;
                     maps.layers[k].snow[c] += o[d] - take;
                     moved -= u64::from(o[d] - take);
-                    if let Some(log) = &mut self.moved_log {
-                        log.push(c2 as u32);
-                    }
                     self.changed[(j2 / TILE) * tx + i2 / TILE] = true;
                     mark(&mut self.dirty_next, nx, nz, i2, j2);
                     let idx2 = c2 * nl + k2;

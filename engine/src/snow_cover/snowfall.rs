@@ -306,7 +306,6 @@ pub fn simulate(
     let mut settler = Settler::new(&maps);
     settler.jacobi_iterations = MODEL_JACOBI_ITERATIONS;
     settler.sweep_relaxation = MODEL_SWEEP_RELAXATION;
-    settler.moved_log = Some(Vec::new());
     let mut router = Router::new(&maps);
     let mut deposit = Deposit::new(&maps);
     let steps = p.steps.max(1);
@@ -352,10 +351,9 @@ pub fn simulate(
                 ctl,
             )?;
             lost += rep.lost_units;
-            if let Some(log) = &mut settler.moved_log {
-                router.cells_moved(log);
-                log.clear();
-            }
+            // The sweep moved snow anywhere from its seeds: the next seed search tests every
+            // cell (logging the sweep's moves cost more than that on the bunny).
+            router.reschedule();
             (1 + rep.iterations, rep.converged)
         };
         report.stabilize_iterations += iterations;
