@@ -352,7 +352,7 @@ impl Router {
                             let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
                             let b2 = f64::from(maps.layers[usize::from(k2)].base[c2]);
                             let t = ((b2 - bc + t_prime) / SNOW_UNIT_M).floor() - 2.0;
-                            thr[d] = if !(t > f64::from(i32::MIN)) {
+                            thr[d] = if t.is_nan() || t <= f64::from(i32::MIN) {
                                 i32::MIN
                             } else if t >= f64::from(i32::MAX) {
                                 i32::MAX
@@ -475,7 +475,7 @@ impl Router {
             .copied()
             .unwrap_or(f64::NAN);
         let due_after = |allowed: f64, seed: bool| -> u32 {
-            if seed || !now.is_finite() || !(allowed >= 0.0) {
+            if seed || !now.is_finite() || allowed.is_nan() || allowed < 0.0 {
                 return (n + 1) as u32;
             }
             let later = cum.get(n..).unwrap_or(&[]);

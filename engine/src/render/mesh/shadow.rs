@@ -220,7 +220,7 @@ fn fill_triangle(t: &[[f64; 3]; 3], r0: usize, r1: usize, size: usize, rows: &mu
                 hi = f64::NEG_INFINITY;
             }
         }
-        if !(lo <= hi) {
+        if lo.is_nan() || hi.is_nan() || lo > hi {
             continue;
         }
         // lo ≥ i0 + ½ > 0, so the cast floors; for hi it truncates (≥ the floor): wider.
