@@ -40,6 +40,17 @@
 //!    ([`super::settle`]'s outflow); any that would still move snow seed the height-ordered
 //!    sweep, which settles them (the paper's levelling) and confirms.
 //!
+//! **Seed search** (which cells start the erosion). A seed is a cell with snow above what it
+//! could keep against its neighbours' D. Instead of testing every cell each step, each test
+//! (integer pre-tests, then the exact cap only over the links that fail them:
+//! [`Router::seed_test`]) also yields how much more snow may fall before its answer can change:
+//! a step's deposit is `round(P·b′) − round(P·b)` units, so over any run of steps the drop toward
+//! a neighbour grows by at most `(P − P₂)·Δb + 2`. The cell is tested again at the first step
+//! past that, or at the next step when it or a neighbour was moved (the routing's touched cells
+//! and their neighbours), or when it was a seed; every cell is tested on the first step, after P
+//! changes, after a fallback sweep, and when the moved cells are a large share of all. The seeds
+//! found are the same as testing every cell (bit-identical outputs; BENCHMARKS.md, session 17).
+//!
 //! Mass: integer units throughout ([`super::maps::SNOW_UNIT_M`]); every transfer is exact, so
 //! `fallen = resting + lost` to the unit. Both passes are serial with a total order (surface,
 //! then cell and layer index), so the result does not depend on the thread count; the seed
@@ -80,8 +91,28 @@ pub(super) struct Router {
     nx: usize,
     nz: usize,
     nl: usize,
-    /// The eroded snow U, units, per `c · layers + k`.
-    lb: Vec<u32>,
+    /// The eroded snow U, units, per `c · layers + k` (written lazily: see [`Bound`]).
+    lb: Bound,
+    /// Per `c · layers + k`: the cell's capacity ([`super::maps::MapLayer::capacity`]; static).
+    cap: Vec<u32>,
+    /// The seed search's integer pre-tests (see [`Router::seed_test`]).
+    filter: SeedFilter,
+    /// Per `c · layers + k`: the step at which the seed test must run again ([`NEVER`]: only
+    /// when the cell or a neighbour is moved).
+    due: Vec<u32>,
+    /// Per step: the `c · layers + k` due then (stale entries are skipped: `due` decides).
+    buckets: Vec<Vec<u32>>,
+    /// Cells whose snow, or a neighbour's, was moved since the last seed search.
+    moved: Vec<u32>,
+    /// False: the next seed search tests every cell (first step, or P changed).
+    scheduled: bool,
+    /// The cells and layers tested in this step, and each one's (seed keep, next due step).
+    tests: Vec<(u32, Option<u32>, u32)>,
+    /// Cells (of any layer) the last full seed search tested, about.
+    tests_full: usize,
+    /// The seed search's list of cells and layers to test, and per `c · layers + k`: on it.
+    list: Vec<u32>,
+    listed: Vec<bool>,
     /// Per `c · layers + k`: in the routing heap.
     queued: Vec<bool>,
     /// Per cell: touched by the routing (or a neighbour of a touched cell), to be checked.
@@ -95,6 +126,111 @@ pub(super) struct Router {
     /// does not raise the cell's surface until the cell's turn).
     pending: Vec<u32>,
 }
+
+/// The erosion's U per `c · layers + k`, written lazily: U starts each [`Router::route`] as D (the
+/// snow after the step's deposit), so instead of copying every cell's snow at the start of a
+/// step (a pass over all cells and layers per step), a value counts only when it was written in
+/// the current call (`epoch`); elsewhere U is the cell's snow. The routing changes a cell's snow
+/// only at its own turn, after [`Bound::materialize`] has fixed its U, so an unwritten U always
+/// reads D.
+#[derive(Debug, Clone)]
+struct Bound {
+    lb: Vec<u32>,
+    written: Vec<u32>,
+    epoch: u32,
+}
+
+impl Bound {
+    fn new(n: usize) -> Self {
+        Self {
+            lb: vec![0; n],
+            written: vec![0; n],
+            epoch: 0,
+        }
+    }
+
+    /// A new call: every U is D again.
+    fn reset(&mut self) {
+        if self.epoch == u32::MAX {
+            self.written.iter_mut().for_each(|w| *w = 0);
+            self.epoch = 0;
+        }
+        self.epoch += 1;
+    }
+
+    /// U at `idx` = (c, k).
+    #[inline(always)]
+    fn get(&self, maps: &SnowMaps, idx: usize, c: usize, k: usize) -> u32 {
+        if self.written[idx] == self.epoch {
+            self.lb[idx]
+        } else {
+            maps.layers[k].snow[c]
+        }
+    }
+
+    #[inline]
+    fn set(&mut self, idx: usize, v: u32) {
+        self.lb[idx] = v;
+        self.written[idx] = self.epoch;
+    }
+
+    /// Fix U at `idx` before the cell's snow changes.
+    #[inline]
+    fn materialize(&mut self, maps: &SnowMaps, idx: usize, c: usize, k: usize) {
+        if self.written[idx] != self.epoch {
+            let v = maps.layers[k].snow[c];
+            self.set(idx, v);
+        }
+    }
+}
+
+/// A cheap exact pre-test of the seed search ([`Router::may_seed`]), for one `t'`.
+#[derive(Debug, Clone)]
+struct SeedFilter {
+    /// The `t'` (bits) it was built for; NaN: not built.
+    t_prime: f64,
+    /// Per `c · layers + k`: `min(capacity, ⌊t' / unit⌋ if a link leads over the edge)`.
+    lim: Vec<u32>,
+    /// Per `c · layers + k` and direction: `⌊G⌋ − 2` with `G = (base₂ − base + t') / unit` for a
+    /// link to a layer (`i32::MIN`: test exactly; saturated at `i32::MAX`).
+    thr: Vec<[i32; 4]>,
+}
+
+/// The deposit rate of probability `p` per unit of open-ground snowfall (what
+/// [`super::snowfall`]'s deposit rounds: `p` where positive, else none lands).
+#[inline]
+fn rate(p: f32) -> f64 {
+    if p > 0.0 {
+        f64::from(p)
+    } else {
+        0.0
+    }
+}
+
+/// How far the cumulative open-ground snowfall (units) may grow while a margin of `slack` units
+/// shrinks by at most `rate` per unit of it: negative when the margin is already gone.
+#[inline]
+fn allowance(slack: i64, rate: f64) -> f64 {
+    if slack < 0 {
+        -1.0
+    } else if rate <= 0.0 {
+        f64::INFINITY
+    } else {
+        slack as f64 / rate
+    }
+}
+
+/// Where the model's time loop stands, for the seed search's schedule ([`Router::route`]).
+pub(super) struct Clock<'a> {
+    /// Cumulative snowfall on open ground at the end of each step, in snow units (the deposit's
+    /// `after / SNOW_UNIT_M`); index n − 1 for step n.
+    pub cum: &'a [f64],
+    /// This step, 1-based.
+    pub step: usize,
+}
+
+/// [`Router::due`]: not before the cell or a neighbour changes.
+const NEVER: u32 = u32::MAX;
 
 /// `⌊x⌋` as units in `[0, u32::MAX]`.
 #[inline]
@@ -116,7 +252,23 @@ impl Router {
             nx: maps.nx,
             nz: maps.nz,
             nl,
-            lb: vec![0; n * nl],
+            lb: Bound::new(n * nl),
+            cap: (0..n * nl)
+                .map(|idx| maps.layers[idx % nl].capacity(idx / nl))
+                .collect(),
+            filter: SeedFilter {
+                t_prime: f64::NAN,
+                lim: Vec::new(),
+                thr: Vec::new(),
+            },
+            due: vec![NEVER; n * nl],
+            buckets: Vec::new(),
+            moved: Vec::new(),
+            scheduled: false,
+            tests: Vec::new(),
+            tests_full: 0,
+            list: Vec::new(),
+            listed: vec![false; n * nl],
             queued: vec![false; n * nl],
             check: vec![false; n],
             check_list: Vec::new(),
@@ -128,13 +280,15 @@ impl Router {
     }
 
     /// The most snow (units) cell-and-layer (c, k) can keep with the repose property `t_prime`
-    /// toward neighbours whose surfaces are given by `lb` (units per `c · layers + k`), skipping
-    /// neighbours full to their ceiling in the *current* state (walls for now, as the sweep's
-    /// rule has it); at most the cell's capacity.
+    /// toward neighbours whose surfaces are given by `lb` (U, units per `c · layers + k`),
+    /// skipping neighbours full to their ceiling in the *current* state (walls for now, as the
+    /// sweep's rule has it); at most the cell's capacity (`cap`, per `c · layers + k`).
     #[inline]
+    #[allow(clippy::too_many_arguments)]
     fn keep_cap(
         maps: &SnowMaps,
-        lb: &[u32],
+        lb: &Bound,
+        cap: &[u32],
         nl: usize,
         k: usize,
         i: usize,
@@ -145,7 +299,7 @@ impl Router {
         let c = j * nx + i;
         let l = &maps.layers[k];
         let bc = f64::from(l.base[c]);
-        let mut cap = l.capacity(c);
+        let mut keep = cap[c * nl + k];
         for (d, &link) in l.links[c].iter().enumerate() {
             let v = match link {
                 LINK_WALL => continue,
@@ -155,20 +309,140 @@ impl Router {
                     let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
                     let k2 = usize::from(k2);
                     let l2 = &maps.layers[k2];
-                    let cap2 = l2.capacity(c2);
+                    let idx2 = c2 * nl + k2;
+                    let cap2 = cap[idx2];
                     if l2.snow[c2] >= cap2 {
                         continue;
                     }
-                    let s2 = lb[c2 * nl + k2].min(cap2);
+                    let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
                     units_floor(
                         (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime)
                             / SNOW_UNIT_M,
                     )
                 }
             };
-            cap = cap.min(v);
+            keep = keep.min(v);
         }
-        cap
+        keep
+    }
+
+    /// Build the seed filter for `t_prime` (once per run: the geometry is fixed).
+    fn build_filter(&mut self, maps: &SnowMaps, t_prime: f64) {
+        if self.filter.t_prime.to_bits() == t_prime.to_bits() {
+            return;
+        }
+        let (nx, nl) = (self.nx, self.nl);
+        let edge = units_floor(t_prime / SNOW_UNIT_M);
+        let cap = &self.cap;
+        let (lim, thr): (Vec<u32>, Vec<[i32; 4]>) = (0..cap.len())
+            .into_par_iter()
+            .map(|idx| {
+                let (c, k) = (idx / nl, idx % nl);
+                let (i, j) = (c % nx, c / nx);
+                let l = &maps.layers[k];
+                let bc = f64::from(l.base[c]);
+                let mut lim = cap[idx];
+                let mut thr = [i32::MAX; 4];
+                for (d, &link) in l.links[c].iter().enumerate() {
+                    match link {
+                        LINK_WALL => {}
+                        LINK_LOST => lim = lim.min(edge),
+                        k2 => {
+                            let (di, dj) = NEIGHBOURS[d];
+                            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+                            let b2 = f64::from(maps.layers[usize::from(k2)].base[c2]);
+                            let t = ((b2 - bc + t_prime) / SNOW_UNIT_M).floor() - 2.0;
+                            thr[d] = if t.is_nan() || t <= f64::from(i32::MIN) {
+                                i32::MIN
+                            } else if t >= f64::from(i32::MAX) {
+                                i32::MAX
+                            } else {
+                                t as i32
+                            };
+                        }
+                    }
+                }
+                (lim, thr)
+            })
+            .unzip();
+        self.filter = SeedFilter { t_prime, lim, thr };
+    }
+
+    /// The seed test of cell-and-layer `idx` = (c, k) at cell (i, j) in the current state (U =
+    /// D): `Some(keep)` when it is a seed (`s > keep`, `keep` = [`Router::keep_cap`]), and how much
+    /// more snow may fall on open ground (units of `C / unit`) before the test can change its
+    /// answer without the cell or a linked neighbour being moved (module doc, "Seed search").
+    ///
+    /// Integer tests first: `s > lim` is the capacity and edge part of [`Router::keep_cap`]
+    /// itself, and toward a layer link whose neighbour has room and snow `s₂` the cap is `⌊x⌋`,
+    /// `x = s₂ + G` up to rounding far below a unit (`G` as in [`SeedFilter::thr`]), so while `s −
+    /// s₂ ≤ ⌊G⌋ − 2` that link does not bind (`x > s + 1`). Only a cell failing one of them is
+    /// tested exactly. The allowance: a step from cumulative amount `b` to `b′` deposits
+    /// `round(P·b′) − round(P·b)` units ([`super::snowfall`]), so over any run of steps `s − s₂`
+    /// grows by at most `(P − P₂)·(b′ − b) + 2` (one unit of rounding at each end, both
+    /// cells; less where a deposit stops at the ceiling, and a neighbour stopped there is full, no
+    /// longer a constraint), and `s` toward the edge limit by `P·(b′ − b) + 1`; a link's
+    /// allowance keeps one unit of margin more.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    fn seed_test(
+        maps: &SnowMaps,
+        filter: &SeedFilter,
+        cap: &[u32],
+        nl: usize,
+        idx: usize,
+        i: usize,
+        j: usize,
+        t_prime: f64,
+    ) -> (Option<u32>, f64) {
+        let (c, k) = (idx / nl, idx % nl);
+        let nx = maps.nx;
+        let l = &maps.layers[k];
+        let s = l.snow[c];
+        let p = rate(l.probability[c]);
+        let lim = filter.lim[idx];
+        let mut test = s > lim;
+        let mut allowed = f64::INFINITY;
+        if lim < cap[idx] {
+            allowed = allowed.min(allowance(i64::from(lim) - i64::from(s) - 2, p));
+        }
+        let links = l.links[c];
+        let thr = filter.thr[idx];
+        // `keep` as `keep_cap` computes it (U = D = the snow here: nothing is eroded yet), but
+        // only over the links that fail their pre-test: the others give more than `s`, so they
+        // do not lower the minimum when the cell is a seed (and `keep` is not used otherwise).
+        let mut keep = lim;
+        let bc = f64::from(l.base[c]);
+        for d in 0..4 {
+            let k2 = links[d];
+            if k2 == LINK_WALL || k2 == LINK_LOST {
+                continue;
+            }
+            let (di, dj) = NEIGHBOURS[d];
+            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+            let k2 = usize::from(k2);
+            let l2 = &maps.layers[k2];
+            let s2 = l2.snow[c2];
+            let cap2 = cap[c2 * nl + k2];
+            if s2 >= cap2 {
+                continue;
+            }
+            let slack = if thr[d] == i32::MIN {
+                -1
+            } else {
+                i64::from(thr[d]) - (i64::from(s) - i64::from(s2))
+            };
+            if slack < 0 {
+                test = true;
+                keep = keep.min(units_floor(
+                    (f64::from(l2.base[c2]) - bc + f64::from(s2.min(cap2)) * SNOW_UNIT_M + t_prime)
+                        / SNOW_UNIT_M,
+                ));
+            }
+            allowed = allowed.min(allowance(slack - 3, p - rate(l2.probability[c2])));
+        }
+        let seed = (s > 0 && test && s > keep).then_some(keep);
+        (seed, allowed)
     }
 
     #[inline]
@@ -178,50 +452,165 @@ impl Router {
         heap_key(s, idx)
     }
 
-    /// Erosion then routing (module doc) with repose drop `t_drop` and tolerance `tol` (metres).
-    pub(super) fn route(&mut self, maps: &mut SnowMaps, t_drop: f32, tol: f32) -> RouteReport {
+    /// The erosion's seeds, `(c · layers + k, keep)` in index order: every cell and layer
+    /// with snow above [`Router::keep_cap`] (U = D). Tests the cells due at this step, those
+    /// moved (or beside one moved) since the last search, and last step's seeds (a seed that
+    /// found no room moved nothing and is still one); every cell when the schedule does not
+    /// hold. Rayon over rows (all cells) or over the tested cells; the result does not depend on
+    /// the thread count.
+    fn seed_search(&mut self, maps: &SnowMaps, t_prime: f64, clock: &Clock) -> Vec<(u32, u32)> {
+        let (nx, nl) = (self.nx, self.nl);
+        let n = clock.step;
+        // The cumulative snowfall's running maximum (monotone, for a binary search; the bound
+        // holds for it too).
+        let mut cum = Vec::with_capacity(clock.cum.len());
+        let mut hi = f64::NEG_INFINITY;
+        for &b in clock.cum {
+            hi = hi.max(b);
+            cum.push(hi);
+        }
+        let now = clock
+            .cum
+            .get(n.wrapping_sub(1))
+            .copied()
+            .unwrap_or(f64::NAN);
+        let due_after = |allowed: f64, seed: bool| -> u32 {
+            if seed || !now.is_finite() || allowed.is_nan() || allowed < 0.0 {
+                return (n + 1) as u32;
+            }
+            let later = cum.get(n..).unwrap_or(&[]);
+            let off = later.partition_point(|&b| b - now <= allowed);
+            if off == later.len() {
+                NEVER
+            } else {
+                (n + 1 + off) as u32
+            }
+        };
+        let (cap, filter) = (&self.cap, &self.filter);
+        // Every cell when the moved cells are a large share of them (the Stanford bunny: most
+        // of its flanks move every step): a pass in row order costs less than the list.
+        let many = self.moved.len().saturating_mul(2) > self.tests_full;
+        if !self.scheduled || many || self.buckets.len() != cum.len() + 2 {
+            // Every cell (rayon over rows).
+            let tests: Vec<(u32, Option<u32>, u32)> = (0..self.nz)
+                .into_par_iter()
+                .flat_map_iter(|j| {
+                    let mut row = Vec::new();
+                    for i in 0..nx {
+                        for k in 0..nl {
+                            let idx = (j * nx + i) * nl + k;
+                            if cap[idx] == 0 && maps.layers[k].snow[idx / nl] == 0 {
+                                // No room: it never holds snow (deposits and moves stop at
+                                // the capacity), so it never becomes a seed.
+                                continue;
+                            }
+                            let (seed, allowed) =
+                                Self::seed_test(maps, filter, cap, nl, idx, i, j, t_prime);
+                            row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
+                        }
+                    }
+                    row
+                })
+                .collect();
+            self.tests = tests;
+            self.tests_full = self.tests.len() / nl.max(1);
+            self.due.iter_mut().for_each(|d| *d = NEVER);
+            self.buckets = vec![Vec::new(); cum.len() + 2];
+            self.moved.clear();
+            self.scheduled = true;
+        } else {
+            // The cells due now, the moved ones and last step's seeds, each once (`listed`).
+            let mut list = std::mem::take(&mut self.list);
+            list.clear();
+            let bucket = std::mem::take(&mut self.buckets[n.min(cum.len() + 1)]);
+            let moved = std::mem::take(&mut self.moved);
+            let seeds = self.tests.iter().filter(|t| t.1.is_some()).map(|t| t.0);
+            let moved_idx = moved
+                .iter()
+                .flat_map(|&c| (0..nl).map(move |k| c as usize * nl + k));
+            for idx in bucket
+                .iter()
+                .filter(|&&idx| self.due[idx as usize] == n as u32)
+                .map(|&idx| idx as usize)
+                .chain(moved_idx)
+                .chain(seeds.map(|idx| idx as usize))
+            {
+                // A cell and layer with no room holds no snow and never will (deposits and
+                // moves stop at the capacity): never a seed.
+                if !self.listed[idx] && (cap[idx] > 0 || maps.layers[idx % nl].snow[idx / nl] > 0) {
+                    self.listed[idx] = true;
+                    list.push(idx as u32);
+                }
+            }
+            for &idx in &list {
+                self.listed[idx as usize] = false;
+            }
+            self.moved = moved;
+            self.moved.clear();
+            self.buckets[n.min(cum.len() + 1)] = bucket;
+            self.buckets[n.min(cum.len() + 1)].clear();
+            self.tests = list
+                .par_iter()
+                .with_min_len(256)
+                .map(|&idx| {
+                    let c = idx as usize / nl;
+                    let (seed, allowed) = Self::seed_test(
+                        maps,
+                        filter,
+                        cap,
+                        nl,
+                        idx as usize,
+                        c % nx,
+                        c / nx,
+                        t_prime,
+                    );
+                    (idx, seed, due_after(allowed, seed.is_some()))
+                })
+                .collect();
+            self.list = list;
+        }
+        for &(idx, _, due) in &self.tests {
+            self.due[idx as usize] = due;
+            if let Some(b) = self.buckets.get_mut(due as usize) {
+                b.push(idx);
+            }
+        }
+        self.tests
+            .iter()
+            .filter_map(|&(idx, seed, _)| seed.map(|keep| (idx, keep)))
+            .collect()
+    }
+
+    /// The seed search's schedule no longer holds (P changed): the next search tests every cell.
+    pub(super) fn reschedule(&mut self) {
+        self.scheduled = false;
+    }
+
+    /// Erosion then routing (module doc) with repose drop `t_drop` and tolerance `tol` (metres),
+    /// at the time loop's `clock` (the seed search's schedule).
+    pub(super) fn route(
+        &mut self,
+        maps: &mut SnowMaps,
+        t_drop: f32,
+        tol: f32,
+        clock: &Clock,
+    ) -> RouteReport {
         assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.nl);
         let (nx, nz, nl) = (self.nx, self.nz, self.nl);
         let t_prime = f64::from(t_drop) + 0.5 * f64::from(tol);
         let mut rep = RouteReport::default();
 
-        // U starts as D.
-        for (k, l) in maps.layers.iter().enumerate() {
-            for (c, &s) in l.snow.iter().enumerate() {
-                self.lb[c * nl + k] = s;
-            }
-        }
+        // U starts as D (lazily, see `Bound`).
+        self.lb.reset();
+        self.build_filter(maps, t_prime);
 
-        // 1. Erosion. Seeds: the cells of D that are too steep (rayon over rows, in order).
-        let seeds: Vec<(u32, u32)> = {
-            let maps_ref: &SnowMaps = maps;
-            let lb = &self.lb;
-            (0..nz)
-                .into_par_iter()
-                .flat_map_iter(|j| {
-                    let mut row = Vec::new();
-                    for i in 0..nx {
-                        let c = j * nx + i;
-                        for k in 0..nl {
-                            let s = maps_ref.layers[k].snow[c];
-                            if s == 0 {
-                                continue;
-                            }
-                            let cap = Self::keep_cap(maps_ref, lb, nl, k, i, j, t_prime);
-                            if s > cap {
-                                row.push(((c * nl + k) as u32, cap));
-                            }
-                        }
-                    }
-                    row
-                })
-                .collect()
-        };
+        // 1. Erosion. Seeds: the cells of D that are too steep (module doc, "Seed search").
+        let seeds = self.seed_search(maps, t_prime, clock);
         self.eroded.clear();
         self.min_heap.clear();
         for &(idx, cap) in &seeds {
             let idx = idx as usize;
-            self.lb[idx] = cap;
+            self.lb.set(idx, cap);
             self.eroded.push(idx as u32);
             let (c, k) = (idx / nl, idx % nl);
             self.min_heap
@@ -230,7 +619,7 @@ impl Router {
         while let Some(Reverse(key)) = self.min_heap.pop() {
             let idx = key_index(key);
             let (c, k) = (idx / nl, idx % nl);
-            if Self::surface_key(maps, k, c, self.lb[idx], idx) != key {
+            if Self::surface_key(maps, k, c, self.lb.get(maps, idx, c, k), idx) != key {
                 continue; // stale
             }
             let l = &maps.layers[k];
@@ -240,7 +629,7 @@ impl Router {
             }
             let (i, j) = (c % nx, c / nx);
             let top = f64::from(l.base[c])
-                + f64::from(self.lb[idx].min(l.capacity(c))) * SNOW_UNIT_M
+                + f64::from(self.lb.get(maps, idx, c, k).min(self.cap[idx])) * SNOW_UNIT_M
                 + t_prime;
             for (d, &(di, dj)) in NEIGHBOURS.iter().enumerate() {
                 let (i2, j2) = (i as isize + di, j as isize + dj);
@@ -252,15 +641,16 @@ impl Router {
                 for k3 in 0..nl {
                     let l3 = &maps.layers[k3];
                     let idx3 = c2 * nl + k3;
-                    if self.lb[idx3] == 0 || usize::from(l3.links[c2][back]) != k {
+                    let lb3 = self.lb.get(maps, idx3, c2, k3);
+                    if lb3 == 0 || usize::from(l3.links[c2][back]) != k {
                         continue;
                     }
                     let cand = units_floor((top - f64::from(l3.base[c2])) / SNOW_UNIT_M);
-                    if cand < self.lb[idx3] {
-                        if self.lb[idx3] == l3.snow[c2] {
+                    if cand < lb3 {
+                        if lb3 == l3.snow[c2] {
                             self.eroded.push(idx3 as u32);
                         }
-                        self.lb[idx3] = cand;
+                        self.lb.set(idx3, cand);
                         self.min_heap
                             .push(Reverse(Self::surface_key(maps, k3, c2, cand, idx3)));
                     }
@@ -273,7 +663,7 @@ impl Router {
         for n in 0..self.eroded.len() {
             let idx = self.eroded[n] as usize;
             let (c, k) = (idx / nl, idx % nl);
-            if self.queued[idx] || maps.layers[k].snow[c] <= self.lb[idx] {
+            if self.queued[idx] || maps.layers[k].snow[c] <= self.lb.get(maps, idx, c, k) {
                 continue;
             }
             self.queued[idx] = true;
@@ -291,14 +681,17 @@ impl Router {
                 self.queued[idx] = false;
                 let (c, k) = (idx / nl, idx % nl);
                 let (i, j) = (c % nx, c / nx);
-                // The snow in transit arrives (it rests here from now on, or moves on).
+                // The snow in transit arrives (it rests here from now on, or moves on); U here
+                // is fixed first (it was D, the snow before this call).
+                self.lb.materialize(maps, idx, c, k);
                 let s = maps.layers[k].snow[c].saturating_add(self.pending[idx]);
                 maps.layers[k].snow[c] = s;
                 self.pending[idx] = 0;
-                let cap = Self::keep_cap(maps, &self.lb, nl, k, i, j, t_prime);
+                let cap = Self::keep_cap(maps, &self.lb, &self.cap, nl, k, i, j, t_prime);
                 if s <= cap {
                     // It keeps all it has, for good (a lower bound of its final snow).
-                    self.lb[idx] = self.lb[idx].max(s);
+                    let v = self.lb.get(maps, idx, c, k).max(s);
+                    self.lb.set(idx, v);
                     continue;
                 }
                 let excess = s - cap;
@@ -491,7 +884,8 @@ impl Router {
                 }
                 let gone = (e - left) as u32;
                 // What it keeps (up to K) it keeps for good: a lower bound of its final snow.
-                self.lb[idx] = self.lb[idx].max(cap);
+                let v = self.lb.get(maps, idx, c, k).max(cap);
+                self.lb.set(idx, v);
                 if gone == 0 {
                     continue;
                 }
@@ -562,6 +956,8 @@ impl Router {
         }
         all.sort_unstable();
         all.dedup();
+        // The moved cells and their neighbours: tested at the next seed search.
+        self.moved.extend_from_slice(&all);
         let maps_ref: &SnowMaps = maps;
         rep.unsettled = all
             .par_iter()

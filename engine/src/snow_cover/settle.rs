@@ -228,6 +228,18 @@ impl Settler {
         }
     }
 
+    /// The repose drop `T` and the tolerance (metres) on `maps` for `repose_deg`.
+    ///
+    /// # Panics
+    /// If `maps` does not have the shape this workspace was made for.
+    pub(super) fn drops(&self, maps: &SnowMaps, repose_deg: f32) -> (f32, f32) {
+        assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
+        (
+            repose_drop(maps.cell, repose_deg),
+            self.tolerance * maps.cell,
+        )
+    }
+
     /// Stabilize `maps` (module doc) with repose angle `repose_deg` (degrees, in (0, 90)) for at
     /// most `max_iterations` iterations, starting with every tile active. Checks for cancellation
     /// once per iteration.
@@ -241,9 +253,7 @@ impl Settler {
         max_iterations: usize,
         ctl: &dyn Control,
     ) -> Result<SettleReport, Canceled> {
-        assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
-        let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
-        let tol = self.tolerance * maps.cell;
+        let (t_drop, tol) = self.drops(maps, repose_deg);
         let mut rep = SettleReport::default();
         if self.nx.min(self.nz) >= self.coarse_min_side.max(2) {
             let mut coarse = self
@@ -322,9 +332,7 @@ impl Settler {
         max_iterations: usize,
         ctl: &dyn Control,
     ) -> Result<SettleReport, Canceled> {
-        assert!(maps.nx == self.nx && maps.nz == self.nz && maps.layers.len() == self.n_layers);
-        let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
-        let tol = self.tolerance * maps.cell;
+        let (t_drop, tol) = self.drops(maps, repose_deg);
         self.dirty.iter_mut().for_each(|a| *a = false);
         self.dirty_next.iter_mut().for_each(|a| *a = false);
         self.changed.iter_mut().for_each(|a| *a = false);
@@ -679,7 +687,7 @@ fn ordered_bits(x: f32) -> u32 {
 /// cell. Bare base slopes do not count (a steep roof keeps no snow). One pass over the cells
 /// (rayon over rows; a max, so the same for any thread count).
 pub fn repose_residual(maps: &SnowMaps, repose_deg: f32) -> f32 {
-    let t_drop = maps.cell * repose_deg.clamp(0.0, 89.9).to_radians().tan();
+    let t_drop = repose_drop(maps.cell, repose_deg);
     let nx = maps.nx;
     let unit = SNOW_UNIT_M as f32;
     (0..maps.nz)
@@ -717,6 +725,12 @@ pub fn repose_residual(maps: &SnowMaps, repose_deg: f32) -> f32 {
             worst
         })
         .reduce(|| 0.0, f32::max)
+}
+
+/// The repose drop `T = cell · tan(repose)` (metres; the angle clamped to [0°, 89.9°]).
+#[inline]
+pub(super) fn repose_drop(cell: f32, repose_deg: f32) -> f32 {
+    cell * repose_deg.clamp(0.0, 89.9).to_radians().tan()
 }
 
 /// Mark cell (i, j) and its 4 neighbours dirty.

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use super::maps::{capacity_units, SnowMaps, SNOW_UNIT_M};
 use super::probability::{angle_weights, snow_probability, snowfall_directions, Receiver, Wind};
 use super::region::build_snow_maps;
-use super::route::Router;
+use super::route::{Clock, Router};
 use super::settle::{repose_residual, Settler, MODEL_JACOBI_ITERATIONS, MODEL_SWEEP_RELAXATION};
 use crate::geom::mesh::Mesh;
 use crate::{Canceled, Control};
@@ -159,7 +159,7 @@ pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u
                     return 0;
                 }
                 let p = f64::from(p);
-                let d = ((p * b).round() - (p * a).round()).max(0.0) as u64;
+                let d = (round(p * b) - round(p * a)).max(0.0) as u64;
                 // Not past the ceiling: snow that does not fit lands on what is above instead.
                 let cap = capacity_units(base, ceiling);
                 let d = d.min(u64::from(cap.saturating_sub(*s)));
@@ -169,6 +169,101 @@ pub fn accumulate_between(maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u
             .sum::<u64>();
     }
     total
+}
+
+/// `x.round()` (half away from zero), without the library call it compiles to on the baseline
+/// x86-64 target (no SSE4.1 `roundsd`): for `0 ≤ x < 2⁵²` the integer part is exact as a cast
+/// and the fraction `x − ⌊x⌋` exactly representable, so this is the same value (`-0.0` gives
+/// `0.0`); any other `x` goes to `f64::round`.
+#[inline]
+fn round(x: f64) -> f64 {
+    if (0.0..4_503_599_627_370_496.0).contains(&x) {
+        let t = x as u64 as f64;
+        if x - t >= 0.5 {
+            t + 1.0
+        } else {
+            t
+        }
+    } else {
+        x.round()
+    }
+}
+
+/// [`accumulate_between`] for the model's time loop, the same deposits bit for bit, at half the
+/// roundings: step n's `round(P · C(tₙ₋₁) / u)` is step n − 1's `round(P · C(tₙ) / u)`, kept per
+/// cell (valid while P and the cumulative amount it was taken at are unchanged), and the
+/// capacities are computed once.
+struct Deposit {
+    /// Per layer and cell: `round(P · after / unit)` of the last call.
+    prev: Vec<Vec<f64>>,
+    /// Per layer and cell: [`capacity_units`].
+    cap: Vec<Vec<u32>>,
+    /// The `after / unit` (bits) of the last call, while `prev` holds for it.
+    at: Option<u64>,
+}
+
+impl Deposit {
+    fn new(maps: &SnowMaps) -> Self {
+        Self {
+            prev: maps
+                .layers
+                .iter()
+                .map(|l| vec![0.0; l.snow.len()])
+                .collect(),
+            cap: maps
+                .layers
+                .iter()
+                .map(|l| {
+                    l.base
+                        .par_iter()
+                        .zip(l.ceiling.par_iter())
+                        .map(|(&b, &c)| capacity_units(b, c))
+                        .collect()
+                })
+                .collect(),
+            at: None,
+        }
+    }
+
+    /// P changed: the kept roundings no longer hold.
+    fn invalidate(&mut self) {
+        self.at = None;
+    }
+
+    /// As [`accumulate_between`].
+    fn run(&mut self, maps: &mut SnowMaps, before_m: f64, after_m: f64) -> u64 {
+        let (a, b) = (before_m / SNOW_UNIT_M, after_m / SNOW_UNIT_M);
+        let kept = self.at == Some(a.to_bits());
+        let mut total = 0u64;
+        for ((layer, prev), cap) in maps
+            .layers
+            .iter_mut()
+            .zip(self.prev.iter_mut())
+            .zip(self.cap.iter())
+        {
+            total += layer
+                .snow
+                .par_iter_mut()
+                .zip(layer.probability.par_iter())
+                .zip(prev.par_iter_mut().zip(cap.par_iter()))
+                .map(|((s, &p), (prev, &cap))| {
+                    if p <= 0.0 {
+                        return 0;
+                    }
+                    let p = f64::from(p);
+                    let ra = if kept { *prev } else { round(p * a) };
+                    let rb = round(p * b);
+                    *prev = rb;
+                    let d = (rb - ra).max(0.0) as u64;
+                    let d = d.min(u64::from(cap.saturating_sub(*s)));
+                    *s += d as u32;
+                    d
+                })
+                .sum::<u64>();
+        }
+        self.at = Some(b.to_bits());
+        total
+    }
 }
 
 /// Deposit `P · amount_m` on every cell; returns the units deposited.
@@ -212,7 +307,14 @@ pub fn simulate(
     settler.jacobi_iterations = MODEL_JACOBI_ITERATIONS;
     settler.sweep_relaxation = MODEL_SWEEP_RELAXATION;
     let mut router = Router::new(&maps);
+    let mut deposit = Deposit::new(&maps);
     let steps = p.steps.max(1);
+    let at = |n: usize| {
+        p.snowfall
+            .cumulative(p.duration_h * n as f64 / steps as f64)
+    };
+    // Each step's cumulative snowfall `after`, in units, as the deposit computes it.
+    let cum: Vec<f64> = (1..=steps).map(|n| at(n) / SNOW_UNIT_M).collect();
     let mut fallen = 0u64;
     let mut lost = 0u64;
     for n in 1..=steps {
@@ -227,19 +329,14 @@ pub fn simulate(
                 Receiver::SnowSurface,
                 ctl,
             )?;
+            deposit.invalidate();
+            router.reschedule();
         }
-        let before = p
-            .snowfall
-            .cumulative(p.duration_h * (n - 1) as f64 / steps as f64);
-        let after = p
-            .snowfall
-            .cumulative(p.duration_h * n as f64 / steps as f64);
-        fallen += accumulate_between(&mut maps, before, after);
+        fallen += deposit.run(&mut maps, at(n - 1), at(n));
         // Erosion and routing (one pass, `super::route`), then the height-ordered sweeps from
         // the cells it could not settle, if any.
-        let t_drop = maps.cell * p.repose_angle_deg.clamp(0.0, 89.9).to_radians().tan();
-        let tol = settler.tolerance * maps.cell;
-        let routed = router.route(&mut maps, t_drop, tol);
+        let (t_drop, tol) = settler.drops(&maps, p.repose_angle_deg);
+        let routed = router.route(&mut maps, t_drop, tol, &Clock { cum: &cum, step: n });
         lost += routed.lost_units;
         let (iterations, converged) = if routed.unsettled.is_empty() {
             (1, true)
@@ -254,6 +351,9 @@ pub fn simulate(
                 ctl,
             )?;
             lost += rep.lost_units;
+            // The sweep moved snow anywhere from its seeds: the next seed search tests every
+            // cell (logging the sweep's moves cost more than that on the bunny).
+            router.reschedule();
             (1 + rep.iterations, rep.converged)
         };
         report.stabilize_iterations += iterations;

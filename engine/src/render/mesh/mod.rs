@@ -43,7 +43,8 @@
 //! **Cost.** Setup allocates 24 B per vertex and 84 B per triangle (combined mesh, per-triangle
 //! normals and albedo; 72 B more per triangle while the shadow map is built; 32 B more per
 //! triangle and the mip pyramids when textured), the rasteriser's buffers and 4 B per shadow texel (16 MiB at 2048²).
-//! Shadow pass: O(bands × triangles) bounding-box tests plus the covered texels.
+//! Shadow pass: the triangles binned by band of rows, then per row only the texels near the
+//! triangle's span (the covered texels plus a few; `shadow.rs`).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
