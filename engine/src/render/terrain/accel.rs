@@ -253,6 +253,12 @@ impl<'a> TerrainAccel<'a> {
         let (mut w, mut h) = self.dims(level);
         let mut t = t0;
         let mut yt = r.oy + r.dy * t;
+        // Climb gate: the ray's clearance over the last node it skipped (∞ after a cell) must
+        // exceed twice its drop across a node of that size (`climb * s`) for it to climb on
+        // entering a new parent; a ray that skims the node's maximum usually fails the parent's
+        // test too and comes straight back down (one wasted visit).
+        let climb = 2.0 * r.dy.abs() / max(r.du.abs(), r.dv.abs());
+        let mut margin: f64;
         loop {
             // exit_t: the node's far side along each axis.
             let tx = (f64::from(ci as u32 + ox) * s - r.ou) * r.inv_du;
@@ -266,9 +272,11 @@ impl<'a> TerrainAccel<'a> {
                 {
                     return Some(hit);
                 }
+                margin = f64::INFINITY;
             } else {
                 let lv = &self.levels[level - 1];
                 let m = f64::from(lv.max[cj * lv.w + ci]);
+                margin = min(yt, yend) - m;
                 if min(yt, yend) <= m + self.eps_y {
                     // Descend into the child holding the ray at `t` (`child`, ties toward the
                     // direction of travel).
@@ -298,7 +306,7 @@ impl<'a> TerrainAccel<'a> {
             if tz <= tx {
                 new_parent |= step_axis(&mut cj, ZP, h)?;
             }
-            if new_parent && level < top {
+            if new_parent && level < top && margin > climb * s {
                 level += 1;
                 ci >>= 1;
                 cj >>= 1;

@@ -13,7 +13,9 @@
 //! grid point of each 2 × 2 block of cells, level k+1 the maximum of 2 × 2 level-k nodes, up to one
 //! root node. A ray is clipped to the DEM's bounding box and walks the pyramid front to back: at a
 //! node it computes where it leaves the node; if the ray stays above the node's maximum over that
-//! stretch it skips the node (and climbs one level when it enters a new parent), otherwise it
+//! stretch it skips the node (and climbs one level when it enters a new parent, if it cleared
+//! the skipped node by more than twice its drop across it: a ray skimming the maximum would
+//! fail the parent's test and come straight back down), otherwise it
 //! descends into the child that contains it; at level 0 it intersects the cell's triangles. Rays
 //! start at 16-cell nodes rather than the root (fewer visits: 19 → 15 per ray on the paper case).
 //! Cost is O(log n) nodes per ray over smooth terrain (~15 node visits and ~4 cell tests per ray
