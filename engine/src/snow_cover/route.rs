@@ -349,28 +349,21 @@ impl Router {
         let l = &maps.layers[k];
         let bc = f64::from(l.base[c]);
         let mut keep = cap[c * nl + k];
-        for (d, &link) in l.links[c].iter().enumerate() {
-            let v = match link {
-                LINK_WALL => continue,
-                LINK_LOST => units_floor(t_prime / SNOW_UNIT_M),
-                k2 => {
-                    let (di, dj) = NEIGHBOURS[d];
-                    let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-                    let k2 = usize::from(k2);
-                    let l2 = &maps.layers[k2];
-                    let idx2 = c2 * nl + k2;
-                    let cap2 = cap[idx2];
-                    if l2.snow[c2] >= cap2 {
-                        continue;
-                    }
-                    let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
-                    units_floor(
-                        (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime)
-                            / SNOW_UNIT_M,
-                    )
-                }
-            };
-            keep = keep.min(v);
+        let links = l.links[c];
+        if links.contains(&LINK_LOST) {
+            keep = keep.min(units_floor(t_prime / SNOW_UNIT_M));
+        }
+        for (_, c2, k2) in layer_links(links, i, j, nx) {
+            let l2 = &maps.layers[k2];
+            let idx2 = c2 * nl + k2;
+            let cap2 = cap[idx2];
+            if l2.snow[c2] >= cap2 {
+                continue;
+            }
+            let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
+            keep = keep.min(units_floor(
+                (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime) / SNOW_UNIT_M,
+            ));
         }
         keep
     }
@@ -772,29 +765,20 @@ impl Router {
                 // included); over the edge: a sink at the cell's base.
                 let mut cands: [(usize, usize, f64, f64, u32); 4] = [(0, 0, 0.0, 0.0, 0); 4];
                 let mut n = 0;
-                let mut sink: Option<f64> = None;
                 let links = maps.layers[k].links[c];
-                for d in 0..4 {
-                    match links[d] {
-                        LINK_WALL => {}
-                        LINK_LOST => sink = Some(bc),
-                        k2 => {
-                            let (di, dj) = NEIGHBOURS[d];
-                            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-                            let k2 = usize::from(k2);
-                            let l2 = &maps.layers[k2];
-                            let idx2 = c2 * nl + k2;
-                            let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
-                            let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
-                            if s2 >= cap2 || room == 0 {
-                                continue;
-                            }
-                            let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
-                            if h < top {
-                                cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
-                                n += 1;
-                            }
-                        }
+                let sink: Option<f64> = links.contains(&LINK_LOST).then_some(bc);
+                for (_, c2, k2) in layer_links(links, i, j, nx) {
+                    let l2 = &maps.layers[k2];
+                    let idx2 = c2 * nl + k2;
+                    let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
+                    let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
+                    if s2 >= cap2 || room == 0 {
+                        continue;
+                    }
+                    let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
+                    if h < top {
+                        cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
+                        n += 1;
                     }
                 }
                 let cands = &mut cands[..n];
