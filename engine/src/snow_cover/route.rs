@@ -82,6 +82,9 @@ pub(super) struct RouteReport {
     pub stuck_first: usize,
 }
 
+/// U is copied in full ([`Bound`]) when the seeds are more than 1 / this of the cells and layers.
+const EAGER_SEED_SHARE: usize = 32;
+
 /// Most routing rounds per step (module doc, step 3).
 const MAX_ROUNDS: usize = 64;
 
@@ -133,11 +136,18 @@ pub(super) struct Router {
 /// the current call (`epoch`); elsewhere U is the cell's snow. The routing changes a cell's snow
 /// only at its own turn, after [`Bound::materialize`] has fixed its U, so an unwritten U always
 /// reads D.
+///
+/// When a step's seeds are many (the Stanford bunny: most of its flanks move every step), the
+/// erosion and routing read U at most cells, and the lazy read (an epoch array, then a layer's
+/// snow array) costs more memory traffic than a copy: [`Bound::reset`] then copies D once
+/// (`eager`), and U is read from one array.
 #[derive(Debug, Clone)]
 struct Bound {
     lb: Vec<u32>,
     written: Vec<u32>,
     epoch: u32,
+    /// This call's U was copied from D in full: `written` is not used.
+    eager: bool,
 }
 
 impl Bound {
@@ -146,22 +156,39 @@ impl Bound {
             lb: vec![0; n],
             written: vec![0; n],
             epoch: 0,
+            eager: false,
         }
     }
 
-    /// A new call: every U is D again.
-    fn reset(&mut self) {
+    /// A new call: every U is D again; copied at once when `eager` (rayon over cells), else
+    /// lazily.
+    fn reset(&mut self, maps: &SnowMaps, eager: bool) {
         if self.epoch == u32::MAX {
             self.written.iter_mut().for_each(|w| *w = 0);
             self.epoch = 0;
         }
         self.epoch += 1;
+        self.eager = eager;
+        if eager {
+            let nl = maps.layers.len();
+            self.lb
+                .par_chunks_mut(nl.max(1) * 1024)
+                .enumerate()
+                .for_each(|(b, chunk)| {
+                    let c0 = b * 1024;
+                    for (k, l) in maps.layers.iter().enumerate() {
+                        for (n, &s) in l.snow[c0..c0 + chunk.len() / nl].iter().enumerate() {
+                            chunk[n * nl + k] = s;
+                        }
+                    }
+                });
+        }
     }
 
     /// U at `idx` = (c, k).
     #[inline(always)]
     fn get(&self, maps: &SnowMaps, idx: usize, c: usize, k: usize) -> u32 {
-        if self.written[idx] == self.epoch {
+        if self.eager || self.written[idx] == self.epoch {
             self.lb[idx]
         } else {
             maps.layers[k].snow[c]
@@ -171,13 +198,15 @@ impl Bound {
     #[inline]
     fn set(&mut self, idx: usize, v: u32) {
         self.lb[idx] = v;
-        self.written[idx] = self.epoch;
+        if !self.eager {
+            self.written[idx] = self.epoch;
+        }
     }
 
     /// Fix U at `idx` before the cell's snow changes.
     #[inline]
     fn materialize(&mut self, maps: &SnowMaps, idx: usize, c: usize, k: usize) {
-        if self.written[idx] != self.epoch {
+        if !self.eager && self.written[idx] != self.epoch {
             let v = maps.layers[k].snow[c];
             self.set(idx, v);
         }
@@ -231,6 +260,26 @@ pub(super) struct Clock<'a> {
 
 /// [`Router::due`]: not before the cell or a neighbour changes.
 const NEVER: u32 = u32::MAX;
+
+/// The links of cell (i, j) (`links`, on a grid `nx` wide) that lead to a layer of a neighbour
+/// (not a wall, not over the edge): `(direction, neighbour cell, its layer)`, in link order.
+#[inline(always)]
+fn layer_links(
+    links: [u8; 4],
+    i: usize,
+    j: usize,
+    nx: usize,
+) -> impl Iterator<Item = (usize, usize, usize)> {
+    (0..4).filter_map(move |d| {
+        let k2 = links[d];
+        if k2 == LINK_WALL || k2 == LINK_LOST {
+            return None;
+        }
+        let (di, dj) = NEIGHBOURS[d];
+        let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
+        Some((d, c2, usize::from(k2)))
+    })
+}
 
 /// `⌊x⌋` as units in `[0, u32::MAX]`.
 #[inline]
@@ -300,28 +349,21 @@ impl Router {
         let l = &maps.layers[k];
         let bc = f64::from(l.base[c]);
         let mut keep = cap[c * nl + k];
-        for (d, &link) in l.links[c].iter().enumerate() {
-            let v = match link {
-                LINK_WALL => continue,
-                LINK_LOST => units_floor(t_prime / SNOW_UNIT_M),
-                k2 => {
-                    let (di, dj) = NEIGHBOURS[d];
-                    let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-                    let k2 = usize::from(k2);
-                    let l2 = &maps.layers[k2];
-                    let idx2 = c2 * nl + k2;
-                    let cap2 = cap[idx2];
-                    if l2.snow[c2] >= cap2 {
-                        continue;
-                    }
-                    let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
-                    units_floor(
-                        (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime)
-                            / SNOW_UNIT_M,
-                    )
-                }
-            };
-            keep = keep.min(v);
+        let links = l.links[c];
+        if links.contains(&LINK_LOST) {
+            keep = keep.min(units_floor(t_prime / SNOW_UNIT_M));
+        }
+        for (_, c2, k2) in layer_links(links, i, j, nx) {
+            let l2 = &maps.layers[k2];
+            let idx2 = c2 * nl + k2;
+            let cap2 = cap[idx2];
+            if l2.snow[c2] >= cap2 {
+                continue;
+            }
+            let s2 = lb.get(maps, idx2, c2, k2).min(cap2);
+            keep = keep.min(units_floor(
+                (f64::from(l2.base[c2]) - bc + f64::from(s2) * SNOW_UNIT_M + t_prime) / SNOW_UNIT_M,
+            ));
         }
         keep
     }
@@ -413,14 +455,7 @@ impl Router {
         // do not lower the minimum when the cell is a seed (and `keep` is not used otherwise).
         let mut keep = lim;
         let bc = f64::from(l.base[c]);
-        for d in 0..4 {
-            let k2 = links[d];
-            if k2 == LINK_WALL || k2 == LINK_LOST {
-                continue;
-            }
-            let (di, dj) = NEIGHBOURS[d];
-            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-            let k2 = usize::from(k2);
+        for (d, c2, k2) in layer_links(links, i, j, nx) {
             let l2 = &maps.layers[k2];
             let s2 = l2.snow[c2];
             let cap2 = cap[c2 * nl + k2];
@@ -446,9 +481,16 @@ impl Router {
     }
 
     #[inline]
-    fn surface_key(maps: &SnowMaps, k: usize, c: usize, units: u32, idx: usize) -> u64 {
+    fn surface_key(
+        maps: &SnowMaps,
+        cap: &[u32],
+        k: usize,
+        c: usize,
+        units: u32,
+        idx: usize,
+    ) -> u64 {
         let l = &maps.layers[k];
-        let s = (f64::from(l.base[c]) + f64::from(units.min(l.capacity(c))) * SNOW_UNIT_M) as f32;
+        let s = (f64::from(l.base[c]) + f64::from(units.min(cap[idx])) * SNOW_UNIT_M) as f32;
         heap_key(s, idx)
     }
 
@@ -490,6 +532,10 @@ impl Router {
         // Every cell when the moved cells are a large share of them (the Stanford bunny: most
         // of its flanks move every step): a pass in row order costs less than the list.
         let many = self.moved.len().saturating_mul(2) > self.tests_full;
+        // A schedule is kept only when this step's moves were few: after a step that moved many
+        // cells the next one likely does too, and then a full pass without the bookkeeping
+        // (a due step per cell, the buckets) costs less.
+        let record = !many;
         if !self.scheduled || many || self.buckets.len() != cum.len() + 2 {
             // Every cell (rayon over rows).
             let tests: Vec<(u32, Option<u32>, u32)> = (0..self.nz)
@@ -506,7 +552,12 @@ impl Router {
                             }
                             let (seed, allowed) =
                                 Self::seed_test(maps, filter, cap, nl, idx, i, j, t_prime);
-                            row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
+                            let due = if record {
+                                due_after(allowed, seed.is_some())
+                            } else {
+                                NEVER
+                            };
+                            row.push((idx as u32, seed, due));
                         }
                     }
                     row
@@ -514,10 +565,19 @@ impl Router {
                 .collect();
             self.tests = tests;
             self.tests_full = self.tests.len() / nl.max(1);
-            self.due.iter_mut().for_each(|d| *d = NEVER);
-            self.buckets = vec![Vec::new(); cum.len() + 2];
             self.moved.clear();
-            self.scheduled = true;
+            self.scheduled = record;
+            if !record {
+                // No schedule: the next search tests every cell.
+                return self
+                    .tests
+                    .iter()
+                    .filter_map(|&(idx, seed, _)| seed.map(|keep| (idx, keep)))
+                    .collect();
+            }
+            self.due.iter_mut().for_each(|d| *d = NEVER);
+            self.buckets.iter_mut().for_each(Vec::clear);
+            self.buckets.resize(cum.len() + 2, Vec::new());
         } else {
             // The cells due now, the moved ones and last step's seeds, each once (`listed`).
             let mut list = std::mem::take(&mut self.list);
@@ -600,12 +660,13 @@ impl Router {
         let t_prime = f64::from(t_drop) + 0.5 * f64::from(tol);
         let mut rep = RouteReport::default();
 
-        // U starts as D (lazily, see `Bound`).
-        self.lb.reset();
         self.build_filter(maps, t_prime);
 
         // 1. Erosion. Seeds: the cells of D that are too steep (module doc, "Seed search").
         let seeds = self.seed_search(maps, t_prime, clock);
+        // U starts as D: copied when the seeds are many, else lazily (see `Bound`).
+        let eager = seeds.len().saturating_mul(EAGER_SEED_SHARE) > self.cap.len();
+        self.lb.reset(maps, eager);
         self.eroded.clear();
         self.min_heap.clear();
         for &(idx, cap) in &seeds {
@@ -614,16 +675,16 @@ impl Router {
             self.eroded.push(idx as u32);
             let (c, k) = (idx / nl, idx % nl);
             self.min_heap
-                .push(Reverse(Self::surface_key(maps, k, c, cap, idx)));
+                .push(Reverse(Self::surface_key(maps, &self.cap, k, c, cap, idx)));
         }
         while let Some(Reverse(key)) = self.min_heap.pop() {
             let idx = key_index(key);
             let (c, k) = (idx / nl, idx % nl);
-            if Self::surface_key(maps, k, c, self.lb.get(maps, idx, c, k), idx) != key {
+            if Self::surface_key(maps, &self.cap, k, c, self.lb.get(maps, idx, c, k), idx) != key {
                 continue; // stale
             }
             let l = &maps.layers[k];
-            if l.snow[c] >= l.capacity(c) {
+            if l.snow[c] >= self.cap[idx] {
                 // Full to its ceiling: a wall for its neighbours for now (no constraint).
                 continue;
             }
@@ -651,8 +712,9 @@ impl Router {
                             self.eroded.push(idx3 as u32);
                         }
                         self.lb.set(idx3, cand);
-                        self.min_heap
-                            .push(Reverse(Self::surface_key(maps, k3, c2, cand, idx3)));
+                        self.min_heap.push(Reverse(Self::surface_key(
+                            maps, &self.cap, k3, c2, cand, idx3,
+                        )));
                     }
                 }
             }
@@ -668,7 +730,8 @@ impl Router {
             }
             self.queued[idx] = true;
             let s = maps.layers[k].snow[c];
-            self.max_heap.push(Self::surface_key(maps, k, c, s, idx));
+            self.max_heap
+                .push(Self::surface_key(maps, &self.cap, k, c, s, idx));
         }
         self.check_list.clear();
         let mut stuck: Vec<u32> = Vec::new();
@@ -702,29 +765,20 @@ impl Router {
                 // included); over the edge: a sink at the cell's base.
                 let mut cands: [(usize, usize, f64, f64, u32); 4] = [(0, 0, 0.0, 0.0, 0); 4];
                 let mut n = 0;
-                let mut sink: Option<f64> = None;
                 let links = maps.layers[k].links[c];
-                for d in 0..4 {
-                    match links[d] {
-                        LINK_WALL => {}
-                        LINK_LOST => sink = Some(bc),
-                        k2 => {
-                            let (di, dj) = NEIGHBOURS[d];
-                            let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-                            let k2 = usize::from(k2);
-                            let l2 = &maps.layers[k2];
-                            let idx2 = c2 * nl + k2;
-                            let (s2, cap2) = (l2.snow[c2], l2.capacity(c2));
-                            let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
-                            if s2 >= cap2 || room == 0 {
-                                continue;
-                            }
-                            let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
-                            if h < top {
-                                cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
-                                n += 1;
-                            }
-                        }
+                let sink: Option<f64> = links.contains(&LINK_LOST).then_some(bc);
+                for (_, c2, k2) in layer_links(links, i, j, nx) {
+                    let l2 = &maps.layers[k2];
+                    let idx2 = c2 * nl + k2;
+                    let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
+                    let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
+                    if s2 >= cap2 || room == 0 {
+                        continue;
+                    }
+                    let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
+                    if h < top {
+                        cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
+                        n += 1;
                     }
                 }
                 let cands = &mut cands[..n];
@@ -816,16 +870,9 @@ impl Router {
                 let mut extra: [(usize, usize, u32); 4] = [(0, 0, 0); 4];
                 let mut n_extra = 0;
                 if left > 0 && sink.is_none() {
-                    let hfull = bc + f64::from(s.min(maps.layers[k].capacity(c))) * SNOW_UNIT_M;
+                    let hfull = bc + f64::from(s.min(self.cap[idx])) * SNOW_UNIT_M;
                     let mut c2s: [(usize, usize, f64, u32); 4] = [(0, 0, 0.0, 0); 4];
-                    for d in 0..4 {
-                        let k2 = links[d];
-                        if k2 == LINK_WALL || k2 == LINK_LOST {
-                            continue;
-                        }
-                        let (di, dj) = NEIGHBOURS[d];
-                        let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
-                        let k2 = usize::from(k2);
+                    for (_, c2, k2) in layer_links(links, i, j, nx) {
                         let idx2 = c2 * nl + k2;
                         let l2 = &maps.layers[k2];
                         let already: u32 = cands
@@ -837,7 +884,7 @@ impl Router {
                         let held = l2.snow[c2]
                             .saturating_add(self.pending[idx2])
                             .saturating_add(already);
-                        let room = l2.capacity(c2).saturating_sub(held);
+                        let room = self.cap[idx2].saturating_sub(held);
                         let h = f64::from(l2.base[c2]) + f64::from(held) * SNOW_UNIT_M;
                         if room > 0 && h < hfull {
                             c2s[n_extra] = (idx2, c2, h, room);
@@ -910,7 +957,7 @@ impl Router {
                         self.queued[idx2] = true;
                         let s2 = maps.layers[k2].snow[c2];
                         self.max_heap
-                            .push(Self::surface_key(maps, k2, c2, s2, idx2));
+                            .push(Self::surface_key(maps, &self.cap, k2, c2, s2, idx2));
                     }
                 }
             }
@@ -931,7 +978,8 @@ impl Router {
                     self.queued[idx] = true;
                     let (c, k) = (idx / nl, idx % nl);
                     let s = maps.layers[k].snow[c];
-                    self.max_heap.push(Self::surface_key(maps, k, c, s, idx));
+                    self.max_heap
+                        .push(Self::surface_key(maps, &self.cap, k, c, s, idx));
                 }
             }
         }
