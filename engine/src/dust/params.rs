@@ -114,7 +114,9 @@ pub struct DustParams {
     /// Close-up: the orbit camera circles the middle of the dustiest patch of the surface the
     /// default view sees (see [`super::run::close_up_target`]) instead of the mesh's centre, at
     /// `camera.distance` from it (default: 1/10 of the mesh's bounding-box diagonal), so single
-    /// fibres show. Needs the orbit camera (not eye/target). Default false.
+    /// fibres show; with `stickiness: 0` the place dust would lie (D per unit stickiness), so a
+    /// request without dust frames the same patch. Needs the orbit camera (not eye/target).
+    /// Default false.
     pub close_up: bool,
 }
 

@@ -151,6 +151,7 @@ pub fn shell_overlay(
     let mut cache = vec![PixelCache::EMPTY; w * h];
     let mut remap = vec![u32::MAX; sh.mesh.positions.len()];
     let front = facing_triangles(sh, eye);
+    let shadow = ShadowTable::new(sh.textures, sh.shells);
     let total = sh.shells as usize;
     for (done, i) in (1..=sh.shells).rev().enumerate() {
         ctl.checkpoint()?;
@@ -222,7 +223,7 @@ pub fn shell_overlay(
                             continue;
                         }
                         let (l, a) = tex.sample(s, t, level);
-                        let lit = 1.0 - SELF_SHADOW * (top - thr);
+                        let lit = shadow.lit(i, top);
                         lum += lk.weight[j] * l * lit;
                         alpha += lk.weight[j] * a;
                     }
@@ -267,12 +268,62 @@ pub fn shell_overlay(
 /// colour; issue 18, "looks like a plain grey model".)
 pub const DEPTH_SHADE: f32 = 0.5;
 
-/// Self-shadowing inside the dust: a fibre of layer i lies under (noise × D − i / shells) of
-/// dust thickness (as a fraction of `max_thickness`; 0 for the top layer), and its brightness is
-/// scaled by 1 − SELF_SHADOW × that. Not in the paper (its §4 leaves fibre lighting to future
-/// work); Lengyel et al. darken inner shells the same way, and without it 32 layers of fibres
-/// average out into flat felt: the bumps and the fibres on top read only through it.
-pub const SELF_SHADOW: f32 = 0.6;
+/// Self-shadowing inside the dust: the fibres of the outer shells shadow the inner ones. At a
+/// texel where layers i+1..=J are drawn above layer i (J: the top layer there, the largest j with
+/// noise × D ≥ j / shells), the light reaching layer i is the share the fibres of those layers
+/// let through, T = Π (1 − ᾱ_j) over j = i+1..=J, with ᾱ_j the mean coverage of layer j's
+/// texture (a soft shadow: the sky's light comes from many directions, so it sees the layers'
+/// mean coverage rather than the fibre straight above); the fibre's brightness is scaled by
+/// 1 − SELF_SHADOW × (1 − T). Not in the paper: its shells (§2.2, §3) are textured layers with no
+/// lighting between them, and §4 leaves fibre lighting to future work; we add it because without
+/// it 32 layers of fibres average into a felt of one brightness where the dust is thick (issue 18:
+/// the bench's close-up showed no fibres), while with it the top fibres stand bright on the
+/// darker dust below. It was 1 − 0.6 × (noise × D − i / shells), linear in depth: a few % per
+/// layer near the top, so thick dust read as felt.
+pub const SELF_SHADOW: f32 = 0.8;
+
+/// The light T of [`SELF_SHADOW`] for every layer i and top layer J, as the factor
+/// 1 − SELF_SHADOW × (1 − T): (shells + 1)² entries, built once per render.
+struct ShadowTable {
+    shells: u32,
+    /// Factor for layer i under top layer J at `lit[J * (shells + 1) + i]` (i ≤ J).
+    lit: Vec<f32>,
+}
+
+impl ShadowTable {
+    fn new(textures: &[ShellTexture], shells: u32) -> Self {
+        let n = shells as usize;
+        // Coverage of layer j (1-based) = textures[j − 1]; layers without a texture stop nothing.
+        let cover = |j: usize| {
+            textures
+                .get(j.wrapping_sub(1))
+                .map_or(0.0, |t| f64::from(t.mean_alpha()))
+        };
+        let mut lit = vec![1.0f32; (n + 1) * (n + 1)];
+        for top in 1..=n {
+            let mut t = 1.0f64;
+            for i in (0..=top).rev() {
+                lit[top * (n + 1) + i] = (1.0 - f64::from(SELF_SHADOW) * (1.0 - t)) as f32;
+                t *= 1.0 - cover(i);
+            }
+        }
+        Self { shells, lit }
+    }
+
+    /// The factor for a fibre of layer `i` where noise × D = `top` (≥ i / shells).
+    #[inline]
+    fn lit(&self, i: u32, top: f32) -> f32 {
+        let n = self.shells;
+        let mut j = ((top * n as f32) as u32).clamp(i, n);
+        while j < n && top >= layer_fraction(j + 1, n) {
+            j += 1;
+        }
+        while j > i && top < layer_fraction(j, n) {
+            j -= 1;
+        }
+        self.lit[j as usize * (n as usize + 1) + i as usize]
+    }
+}
 
 /// Overlay alpha (fixed-point) beyond which the layers below no longer show: 1 − 1/512.
 const OPAQUE: u16 = (Overlay::SCALE * (1.0 - 1.0 / 512.0)) as u16;

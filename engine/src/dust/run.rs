@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::amount::{directional, vertex_exposure};
+use super::amount::{directional, vertex_exposure, AmountModel};
 use super::export::{dusty_glb, TextureAtlas};
 use super::fibers::{fiber_texture, shell_fiber_count};
 use super::mapping::Mapping;
@@ -103,9 +103,11 @@ fn diagonal(mesh: &Mesh) -> f32 {
 /// [`CLOSE_UP_CELL`] × the bounding-box diagonal (about the close-up's field of view at its
 /// default distance); each cube scores Σ area × mean D over itself and its 26 neighbours, and
 /// the target is the vertex nearest the best cube's centre among those around it with at least
-/// half their largest D; the mesh's centre when no vertex has dust. The first rule — the most dusted vertex nearest the
-/// eye — picked a few-pixel cap at a propeller blade's tip while the dust lay on another blade's
-/// face (held-out `occt_propeller`: the close-up showed no fibres).
+/// half their largest D; the mesh's centre when no vertex has dust. [`run`] passes D per unit
+/// stickiness when K = 0, so a close-up without dust frames the same place. The first rule —
+/// the most dusted vertex nearest the eye — picked a few-pixel cap at a propeller blade's tip
+/// while the dust lay on another blade's face (held-out `occt_propeller`: the close-up showed
+/// no fibres).
 pub fn close_up_target(mesh: &Mesh, amount: &[f32], eye: [f64; 3]) -> [f64; 3] {
     let max = amount.iter().copied().fold(0.0f32, f32::max);
     let bounds = mesh.bounds();
@@ -265,7 +267,25 @@ pub fn run(input: &Mesh, p: &DustParams, ctl: &dyn Control) -> Result<Vec<Output
             fov_deg,
         } = p.view.camera
         {
-            let target = close_up_target(&mesh, &amount, camera.eye);
+            // Framed by D per unit stickiness (D ∝ K): K = 0 frames the patch dust would cover,
+            // so a request without dust shows the same place as the dusty one (session 16's
+            // survey compared the dusty patch with the mesh's centre). K > 0 uses D itself.
+            let unit_amount: Vec<f32>;
+            let framing = if p.stickiness > 0.0 {
+                &amount
+            } else {
+                let unit = AmountModel {
+                    stickiness: 1.0,
+                    ..model
+                };
+                unit_amount = normals
+                    .iter()
+                    .zip(&exposure)
+                    .map(|(n, e)| directional(&unit, *n, u) * e)
+                    .collect();
+                &unit_amount
+            };
+            let target = close_up_target(&mesh, framing, camera.eye);
             let d = distance.unwrap_or(f64::from(diag) / 10.0);
             camera = Camera::orbit(target, azimuth_deg, elevation_deg, d, fov_deg);
         }

@@ -64,6 +64,13 @@ impl ShellTexture {
         self.levels[0].side
     }
 
+    /// Mean coverage (alpha) of level 0, 0–1: the share of light the layer stops, on average.
+    pub fn mean_alpha(&self) -> f32 {
+        let lv = &self.levels[0];
+        let sum: u64 = lv.texels.iter().map(|t| u64::from(t[1])).sum();
+        (sum as f64 / (lv.texels.len().max(1) as f64 * 255.0)) as f32
+    }
+
     /// Number of levels.
     pub fn levels(&self) -> usize {
         self.levels.len()
