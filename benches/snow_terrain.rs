@@ -33,6 +33,7 @@ use phenomena_engine::snow_terrain::sun::{apply_sun, Sun};
 use phenomena_engine::snow_terrain::transfer::transfer_grid;
 use phenomena_engine::snow_terrain::tsa::{tangent_sphere_accessibility, TsaGrid};
 use phenomena_engine::snow_terrain::{overview_render, run, SnowTerrainParams};
+use phenomena_engine::testkit::dems::mirrored;
 use phenomena_engine::NoControl;
 
 fn tanzawa() -> Dem {
@@ -40,33 +41,6 @@ fn tanzawa() -> Dem {
         .join("../shared/data/dem/tanzawa_sagami_aster_gdem2.tif");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     decode_dem(&bytes, Some("tanzawa.tif"), &DemOptions::default()).expect("decodes")
-}
-
-/// `w × h` window of `src` tiled by mirroring (row 0 / column 0 at the source's north-west).
-pub fn mirrored(src: &Dem, w: usize, h: usize) -> Dem {
-    let fold = |i: usize, n: usize| {
-        let p = i % (2 * n);
-        if p < n {
-            p
-        } else {
-            2 * n - 1 - p
-        }
-    };
-    let mut heights = Vec::with_capacity(w * h);
-    for r in 0..h {
-        let sr = fold(r, src.height);
-        for c in 0..w {
-            heights.push(src.heights[sr * src.width + fold(c, src.width)]);
-        }
-    }
-    Dem {
-        width: w,
-        height: h,
-        heights,
-        dx: src.dx,
-        dy: src.dy,
-        georef: Default::default(),
-    }
 }
 
 fn params(width: u32, height: u32) -> SnowTerrainParams {

@@ -13,6 +13,7 @@ use phenomena_engine::formats::dem::{decode_dem, DemOptions};
 use phenomena_engine::geom::Dem;
 use phenomena_engine::params::Limits;
 use phenomena_engine::snow_terrain::{run, SnowTerrainParams};
+use phenomena_engine::testkit::dems::mirrored;
 use phenomena_engine::NoControl;
 
 fn load(path: &std::path::Path) -> Dem {
@@ -22,32 +23,6 @@ fn load(path: &std::path::Path) -> Dem {
         .and_then(|n| n.to_str())
         .unwrap_or("dem.tif");
     decode_dem(&bytes, Some(name), &DemOptions::default()).expect("decodes")
-}
-
-fn mirrored(src: &Dem, w: usize, h: usize) -> Dem {
-    let fold = |i: usize, n: usize| {
-        let p = i % (2 * n);
-        if p < n {
-            p
-        } else {
-            2 * n - 1 - p
-        }
-    };
-    let mut heights = Vec::with_capacity(w * h);
-    for r in 0..h {
-        let sr = fold(r, src.height);
-        for c in 0..w {
-            heights.push(src.heights[sr * src.width + fold(c, src.width)]);
-        }
-    }
-    Dem {
-        width: w,
-        height: h,
-        heights,
-        dx: src.dx,
-        dy: src.dy,
-        georef: Default::default(),
-    }
 }
 
 fn main() {
