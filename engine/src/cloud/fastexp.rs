@@ -24,7 +24,15 @@ pub fn exp_neg(x: f32) -> f32 {
     let r = (v + MAGIC) - MAGIC;
     let fi = if r < v { r + 1.0 } else { r };
     let i = ((fi + MAGIC).to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
-    // z = x − i·ln 2 in two parts (Cody–Waite): i·LN2_HI is exact, so z keeps full precision.
+    // Wrapping: a NaN argument gives a meaningless i (the result is NaN through e^z anyway).
+    scaled_exp_z(x, fi, i.wrapping_add(127))
+}
+
+/// `2^i · e^z` with `z = x − fi·ln 2` (Cody–Waite: `fi·LN2_HI` is exact, so z keeps full
+/// precision), `e^z` the degree-7 Taylor polynomial and `2^i` built from the biased exponent
+/// `biased = i + 127`; 0 for `x ≤ −87`.
+#[inline(always)]
+fn scaled_exp_z(x: f32, fi: f32, biased: i32) -> f32 {
     const LN2_HI: f32 = 0.693_145_75; // 0x3f31_7200: 15 significant bits
     const LN2_LO: f32 = 1.428_606_8e-6; // ln 2 − LN2_HI
     let z = (x - fi * LN2_HI) - fi * LN2_LO;
@@ -34,8 +42,7 @@ pub fn exp_neg(x: f32) -> f32 {
                 + z * (1.0 / 6.0
                     + z * (1.0 / 24.0
                         + z * (1.0 / 120.0 + z * (1.0 / 720.0 + z * (1.0 / 5040.0)))))));
-    // Wrapping: a NaN argument gives a meaningless i (the result is NaN through p anyway).
-    let scale = f32::from_bits((i.wrapping_add(127) as u32) << 23);
+    let scale = f32::from_bits((biased as u32) << 23);
     if x <= -87.0 {
         0.0
     } else {
@@ -80,22 +87,7 @@ mod tests {
             let x = x.clamp(-87.0, 0.0);
             let t = x * std::f32::consts::LOG2_E;
             let i = (t - 0.5) as i32;
-            const LN2_HI: f32 = 0.693_145_75;
-            const LN2_LO: f32 = 1.428_606_8e-6;
-            let fi = i as f32;
-            let z = (x - fi * LN2_HI) - fi * LN2_LO;
-            let p = 1.0
-                + z * (1.0
-                    + z * (1.0 / 2.0
-                        + z * (1.0 / 6.0
-                            + z * (1.0 / 24.0
-                                + z * (1.0 / 120.0 + z * (1.0 / 720.0 + z * (1.0 / 5040.0)))))));
-            let scale = f32::from_bits(((i + 127) as u32) << 23);
-            if x <= -87.0 {
-                0.0
-            } else {
-                p * scale
-            }
+            scaled_exp_z(x, i as f32, i + 127)
         };
         for b in (0..=u32::MAX).step_by(61) {
             let x = f32::from_bits(b);
