@@ -164,6 +164,8 @@ fi
 if want clouds; then
   if [ "$QUICK" = 1 ]; then cargs="--size 32 --width 64 --height 48 --ref-spp 256"; else cargs="--ref-spp 4096"; fi
   say "== clouds: Mitsuba 3 single scattering at our error (scripts/mitsuba/compare_multiple.py $cargs)"
+  # A result left by an earlier run (the quick one's cumulus32 sorts first) must not be read.
+  rm -f "$OUT"/mitsuba/result_cumulus*.json
   # shellcheck disable=SC2086
   $PEER_PY "$ROOT/scripts/mitsuba/compare_multiple.py" --modes single --binary "$BIN" \
     --out "$OUT/mitsuba" $cargs > "$OUT/mitsuba.log" 2>&1 || { say "   compare_multiple.py failed: $OUT/mitsuba.log"; }
