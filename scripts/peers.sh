@@ -5,8 +5,8 @@
 # runs (A B A B …: ours, peer, ours, peer; the ratio is taken pair by pair, so a drift of the
 # machine's speed hits both sides of a pair alike; scripts/peers/abtime.py).
 #
-#   scripts/peers.sh                      # the full table (about 30 min at load 4–6 with
-#                                         # PEERS_RUNS=3; the clouds row's time not measured)
+#   scripts/peers.sh                      # the full table (22 min at load 3–11 on 2026-12-05,
+#                                         # 5 runs, the clouds row ≈ 4 min of it)
 #   PEERS_QUICK=1 scripts/peers.sh        # small inputs, 3 runs: checks that every row works
 #   PEERS_ONLY=snow,descriptor scripts/peers.sh
 #
@@ -43,7 +43,7 @@
 #                our error, extrapolated from its spp ladder (not interleaved; its own method)
 #
 # Output: one block per row on stdout, a summary table at the end, every run's figures in
-# $PEERS_DIR/results-<date>.jsonl and the commands' stderr in $PEERS_DIR/out/<row>.{a,b}.log.
+# $PEERS_DIR/results-<date>.jsonl and the commands' stderr in $PEERS_DIR/<row>.{a,b}.log.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
