@@ -5,8 +5,8 @@
 # runs (A B A B …: ours, peer, ours, peer; the ratio is taken pair by pair, so a drift of the
 # machine's speed hits both sides of a pair alike; scripts/peers/abtime.py).
 #
-#   scripts/peers.sh                      # the full table (about 30 min at load 4–6 with
-#                                         # PEERS_RUNS=3; the clouds row's time not measured)
+#   scripts/peers.sh                      # the full table (22 min at load 3–11 on 2026-12-05,
+#                                         # 5 runs, the clouds row ≈ 4 min of it)
 #   PEERS_QUICK=1 scripts/peers.sh        # small inputs, 3 runs: checks that every row works
 #   PEERS_ONLY=snow,descriptor scripts/peers.sh
 #
@@ -43,7 +43,7 @@
 #                our error, extrapolated from its spp ladder (not interleaved; its own method)
 #
 # Output: one block per row on stdout, a summary table at the end, every run's figures in
-# $PEERS_DIR/results-<date>.jsonl and the commands' stderr in $PEERS_DIR/out/<row>.{a,b}.log.
+# $PEERS_DIR/results-<date>.jsonl and the commands' stderr in $PEERS_DIR/<row>.{a,b}.log.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -124,10 +124,12 @@ if want probability; then
   meshes="bunny75k"; [ "$QUICK" = 1 ] || meshes="$meshes bunny1m"
   for m in $meshes; do
     o=$OUT/prob_$m
-    # Ours: the whole pipeline with K = 64, one accumulation step stabilised once, a 64×64 render, so that
-    # little but the probability is left in the whole process; the stage is the probability.
+    # Ours: the whole pipeline with K = 64, no snowfall (one step stabilised once), a 64×64 render,
+    # so that little but the probability is left in the whole process; the stage is the
+    # probability. (snowfall=0: since the converged stabilisation, one step that drops the whole
+    # 12 h of snow at once and is stabilised once still took 3 s of routing on the 75 k bunny.)
     ab --label "probability_k64_$m" \
-      --a "$BIN render snow-cover --input $IN/$m.obj --set directions=64 --set steps=1 --set max_stabilize_iterations=1 --set width=64 --set height=64 --out $o --quiet" \
+      --a "$BIN render snow-cover --input $IN/$m.obj --set directions=64 --set snowfall=0 --set steps=1 --set max_stabilize_iterations=1 --set width=64 --set height=64 --out $o --quiet" \
       --b "$PEER_PY $ROOT/scripts/peers/probability_embree.py $IN/$m.obj 64 $OUT/embree_$m.json" \
       --a-stage "$(stage_expr "$o" probability)" \
       --b-stage "$OUT/embree_$m.json::r['probability']"
@@ -162,6 +164,8 @@ fi
 if want clouds; then
   if [ "$QUICK" = 1 ]; then cargs="--size 32 --width 64 --height 48 --ref-spp 256"; else cargs="--ref-spp 4096"; fi
   say "== clouds: Mitsuba 3 single scattering at our error (scripts/mitsuba/compare_multiple.py $cargs)"
+  # A result left by an earlier run (the quick one's cumulus32 sorts first) must not be read.
+  rm -f "$OUT"/mitsuba/result_cumulus*.json
   # shellcheck disable=SC2086
   $PEER_PY "$ROOT/scripts/mitsuba/compare_multiple.py" --modes single --binary "$BIN" \
     --out "$OUT/mitsuba" $cargs > "$OUT/mitsuba.log" 2>&1 || { say "   compare_multiple.py failed: $OUT/mitsuba.log"; }
