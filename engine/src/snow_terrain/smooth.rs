@@ -27,7 +27,9 @@
 //! (up to 0.1 on 4096² Tanzawa) — not worth it at n = 3.
 //!
 //! Cost: `O(width · height · n² · iterations)`; allocates three `width × height` `f32` grids, a
-//! mask and a validity grid, and per band `(16 + 2n)` padded rows of scratch.
+//! validity grid (and, with nodata, a mask), and per band `(16 + 2n)` padded rows of scratch.
+//! Without nodata the counts depend on the position only (the offsets inside the grid) and are
+//! written directly, without the mask or its summing pass.
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -102,7 +104,12 @@ impl Smoother {
             .map(|&v| if v.is_nan() { 0.0 } else { v })
             .collect();
         let mut count = vec![0.0f32; field.len()];
-        if radius > 0 && width > 0 {
+        if radius > 0 && width > 0 && valid.par_iter().all(|&v| v) {
+            // No nodata: a cell's count is the number of diamond offsets inside the grid, an
+            // integer (exact in f32, so the same bits as the mask's sum), the same for every row
+            // at least `radius` rows from the top and bottom edges.
+            diamond_counts(width, height, radius, &mut count);
+        } else if radius > 0 && width > 0 {
             let mask: Vec<f32> = valid.par_iter().map(|&v| f32::from(u8::from(v))).collect();
             // Neighbour counts of valid cells, 0 at nodata, in one pass.
             for_each_row_sum(
@@ -222,6 +229,34 @@ impl Smoother {
             });
         out
     }
+}
+
+/// Neighbour counts of a grid without nodata: for each cell, the offsets of the diamond
+/// `1 ≤ |di| + |dj| ≤ n` that stay inside the `width × height` grid (what the neighbour sum of
+/// an all-ones mask gives). Rows at least `n` rows from both edges share one row of counts,
+/// computed once; the others are computed each. Parallel over rows.
+fn diamond_counts(width: usize, height: usize, n: usize, out: &mut [f32]) {
+    let row_counts = |r: usize, row: &mut [f32]| {
+        for (c, o) in row.iter_mut().enumerate() {
+            let mut k = 0usize;
+            for rr in r.saturating_sub(n)..=(r + n).min(height - 1) {
+                let m = n - rr.abs_diff(r);
+                k += (c + m).min(width - 1) - c.saturating_sub(m) + 1;
+            }
+            *o = (k - 1) as f32;
+        }
+    };
+    let interior = (height > 2 * n).then(|| {
+        let mut row = vec![0.0f32; width];
+        row_counts(n, &mut row);
+        row
+    });
+    out.par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(r, row)| match &interior {
+            Some(t) if r >= n && r + n < height => row.copy_from_slice(t),
+            _ => row_counts(r, row),
+        });
 }
 
 /// Columns summed at once in registers (8 SSE / 4 AVX vectors: enough independent add chains
@@ -397,6 +432,26 @@ mod tests {
                 } else {
                     assert!((a - b).abs() < 1e-3, "n={n} cell {i}: {a} vs {b}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn counts_without_nodata_match_the_mask_sums() {
+        for (w, h) in [(1, 1), (2, 9), (9, 2), (5, 7), (37, 23), (40, 6)] {
+            for n in 1..=5 {
+                let ones = vec![1.0f32; w * h];
+                let mut summed = vec![0.0f32; w * h];
+                for_each_row_sum(&ones, w, h, n, &mut summed, |_, _, out, sums| {
+                    out.copy_from_slice(sums);
+                });
+                let mut direct = vec![f32::NAN; w * h];
+                diamond_counts(w, h, n, &mut direct);
+                assert_eq!(
+                    direct.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    summed.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    "{w}×{h}, n = {n}"
+                );
             }
         }
     }
