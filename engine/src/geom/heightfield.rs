@@ -77,8 +77,21 @@ impl Dem {
     /// sums are added in chunk order, so the figures do not depend on the thread count (the
     /// mean is the serial sum's whenever the sums are exact, e.g. integer heights).
     pub fn valid_stats(&self) -> Option<(f32, f32, f64, usize)> {
+        self.valid_stats_above(None).0
+    }
+
+    /// [`Self::valid_stats`] and, in the same pass, (min, max, count) of the valid heights
+    /// above `floor` (`None` when `floor` is `None` or no cell is above it): the range a
+    /// histogram of the land cells needs (`snow_terrain::altitude::ElevationHistogram`), without
+    /// a pass of its own. The first figures are the same bits as [`Self::valid_stats`]'.
+    #[allow(clippy::type_complexity)]
+    pub fn valid_stats_above(
+        &self,
+        floor: Option<f32>,
+    ) -> (Option<(f32, f32, f64, usize)>, Option<(f32, f32, usize)>) {
         use rayon::prelude::*;
-        let parts: Vec<(f32, f32, f64, usize)> = self
+        type Part = (f32, f32, f64, usize, f32, f32, usize);
+        let parts: Vec<Part> = self
             .heights
             .par_chunks(1 << 16)
             .map(|c| {
@@ -86,21 +99,50 @@ impl Dem {
                 let mut max = f32::NEG_INFINITY;
                 let mut sum = 0.0f64;
                 let mut n = 0usize;
+                let (mut lmin, mut lmax, mut ln) = (f32::INFINITY, f32::NEG_INFINITY, 0usize);
+                // No floor: nothing is above +∞.
+                let f = floor.unwrap_or(f32::INFINITY);
                 for &h in c {
                     if !h.is_nan() {
                         min = min.min(h);
                         max = max.max(h);
                         sum += f64::from(h);
                         n += 1;
+                        if h > f {
+                            lmin = lmin.min(h);
+                            lmax = lmax.max(h);
+                            ln += 1;
+                        }
                     }
                 }
-                (min, max, sum, n)
+                (min, max, sum, n, lmin, lmax, ln)
             })
             .collect();
-        let (min, max, sum, n) = parts.iter().fold(
-            (f32::INFINITY, f32::NEG_INFINITY, 0.0f64, 0usize),
-            |(a, b, s, n), p| (a.min(p.0), b.max(p.1), s + p.2, n + p.3),
+        let (min, max, sum, n, lmin, lmax, ln) = parts.iter().fold(
+            (
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                0.0f64,
+                0usize,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                0usize,
+            ),
+            |(a, b, s, n, la, lb, ln), p| {
+                (
+                    a.min(p.0),
+                    b.max(p.1),
+                    s + p.2,
+                    n + p.3,
+                    la.min(p.4),
+                    lb.max(p.5),
+                    ln + p.6,
+                )
+            },
         );
-        (n > 0).then(|| (min, max, sum / n as f64, n))
+        (
+            (n > 0).then(|| (min, max, sum / n as f64, n)),
+            (floor.is_some() && ln > 0).then_some((lmin, lmax, ln)),
+        )
     }
 }

@@ -112,6 +112,18 @@ impl ElevationHistogram {
         Self::with_range(heights, floor, (lo, hi, n))
     }
 
+    /// [`Self::new`] from the range of the counted cells already known: `(lowest, highest,
+    /// count)` of the valid cells above `floor` (e.g. the second figures of
+    /// [`crate::geom::Dem::valid_stats_above`]), so one pass (the counts); `None` when no cell
+    /// counts. The same histogram as [`Self::new`]'s when the range is that of those cells.
+    pub fn of_range(
+        heights: &[f32],
+        floor: Option<f32>,
+        range: Option<(f32, f32, usize)>,
+    ) -> Option<Self> {
+        Self::with_range(heights, floor, range?)
+    }
+
     fn with_range(
         heights: &[f32],
         floor: Option<f32>,

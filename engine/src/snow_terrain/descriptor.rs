@@ -597,6 +597,13 @@ pub fn reach(p: &DescriptorParams) -> usize {
     radius * (passes + t_passes) + p.tsa_window + 2 + 1
 }
 
+/// Whether step 4's band comes from the land elevations' quantiles (a histogram of the cells
+/// above `sea_level`: [`compute_with`]'s `elevations` when it is of those cells), not from
+/// given values and the highest cell.
+pub fn needs_quantiles(p: &DescriptorParams) -> bool {
+    p.snowline.is_none() || (p.snow_band.is_none() && p.full_snow_quantile < 1.0)
+}
+
 /// (z₀, z₁) of the altitude term for these parameters (see [`super::altitude`]), `None` when no
 /// cell is land. The `paper` preset (a given snowline, `full_snow_quantile` 1) needs only the
 /// highest cell; otherwise one histogram gives both quantiles.
@@ -605,9 +612,7 @@ fn altitude_band(
     p: &DescriptorParams,
     elevations: Option<&ElevationHistogram>,
 ) -> Option<(f32, f32)> {
-    let need_quantiles =
-        p.snowline.is_none() || (p.snow_band.is_none() && p.full_snow_quantile < 1.0);
-    if !need_quantiles {
+    if !needs_quantiles(p) {
         let z0 = p.snowline?;
         return match p.snow_band {
             Some(d) => Some((z0, z0 + d)),

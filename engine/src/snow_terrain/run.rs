@@ -150,7 +150,9 @@ fn run_in_pool(
     // The descriptor and terrain.glb see `vertical_exaggeration`; the render sees the view's
     // (automatic unless given, see `View::auto_exaggeration`).
     // The DEM's statistics, once (the exaggeration, the report's relief and elevations).
-    let valid = dem.valid_stats();
+    // The land cells' range (above `sea_level`) comes from the same pass: the altitude band's
+    // histogram then needs one pass, not two, when a sea leaves cells out.
+    let (valid, land) = dem.valid_stats_above(p.descriptor.sea_level);
     let stats = valid.map(|(lo, hi, mean, _)| (lo, hi, mean));
     let relief = view::relief_and_extent_of(dem, stats);
     let exaggeration = view_exaggeration(relief, p);
@@ -180,12 +182,19 @@ fn run_in_pool(
                     None,
                     valid.map(|(lo, hi, _, n)| (lo, hi, n)),
                 );
+                // The altitude band's histogram: the land cells' when a sea leaves cells out
+                // of the one above (built from the range found with the DEM's statistics).
+                let sea = p.descriptor.sea_level;
+                let land_hist = (descriptor::needs_quantiles(&p.descriptor)
+                    && !elevations.as_ref().is_some_and(|e| e.is_of(sea)))
+                .then(|| ElevationHistogram::of_range(&dem.heights, sea, land))
+                .flatten();
                 let d = descriptor::compute_with(
                     dem,
                     &p.descriptor,
                     ctl,
                     (0.0, DESCRIPTOR_END),
-                    elevations.as_ref(),
+                    land_hist.as_ref().or(elevations.as_ref()),
                 )?;
                 if !wants_color {
                     return Ok(((d, elevations), Vec::new(), None));

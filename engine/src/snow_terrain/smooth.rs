@@ -26,8 +26,11 @@
 //! move by an ulp, and TSA, a second-order quantity, amplifies that to visible changes of t
 //! (up to 0.1 on 4096² Tanzawa) — not worth it at n = 3.
 //!
-//! Cost: `O(width · height · n² · iterations)`; allocates three `width × height` `f32` grids, a
-//! mask and a validity grid, and per band `(16 + 2n)` padded rows of scratch.
+//! Cost: `O(width · height · n² · iterations)`; allocates two `width × height` `f32` grids and a
+//! validity grid (with nodata also the counts' grid and a mask), and per band `(16 + 2n)`
+//! padded rows of scratch. Without nodata the counts depend on the position only (the offsets
+//! inside the grid) and rows at least `n` from the edges share theirs: `2n + 1` rows of counts,
+//! written directly, without the mask, its summing pass or a grid of counts to read per pass.
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -84,7 +87,7 @@ pub struct Smoother {
     /// Next values (ping-pong buffer).
     next: Vec<f32>,
     /// Number of valid diamond neighbours of valid cells; 0 for nodata cells.
-    count: Vec<f32>,
+    count: Counts,
     /// True where the input holds data.
     valid: Vec<bool>,
 }
@@ -101,8 +104,15 @@ impl Smoother {
             .par_iter()
             .map(|&v| if v.is_nan() { 0.0 } else { v })
             .collect();
-        let mut count = vec![0.0f32; field.len()];
-        if radius > 0 && width > 0 {
+        let count = if radius == 0 || width == 0 {
+            Counts::grid(Vec::new(), 0)
+        } else if valid.par_iter().all(|&v| v) {
+            // No nodata: a cell's count is the number of diamond offsets inside the grid, an
+            // integer (exact in f32, so the same bits as the mask's sum), the same for every row
+            // at least `radius` rows from the top and bottom edges.
+            Counts::without_nodata(width, height, radius)
+        } else {
+            let mut count = vec![0.0f32; field.len()];
             let mask: Vec<f32> = valid.par_iter().map(|&v| f32::from(u8::from(v))).collect();
             // Neighbour counts of valid cells, 0 at nodata, in one pass.
             for_each_row_sum(
@@ -118,7 +128,8 @@ impl Smoother {
                     }
                 },
             );
-        }
+            Counts::grid(count, height)
+        };
         let next = vec![0.0f32; field.len()];
         Self {
             width,
@@ -136,24 +147,19 @@ impl Smoother {
         if self.radius == 0 || self.width == 0 {
             return;
         }
-        let (w, cur, count) = (self.width, &self.cur, &self.count);
+        let (w, h, n) = (self.width, self.height, self.radius);
+        let (cur, count) = (&self.cur, &self.count);
         // Sum and finish each tile while it is in L1 (one pass over the grid).
-        for_each_row_sum(
-            cur,
-            w,
-            self.height,
-            self.radius,
-            &mut self.next,
-            |r, t0, next, sums| {
-                let o = r * w + t0;
-                let (cur, count) = (&cur[o..o + next.len()], &count[o..o + next.len()]);
-                for (((n, &s), &c), &k) in next.iter_mut().zip(sums).zip(cur).zip(count) {
-                    // Valid with neighbours: (own + sum/count)/2 (a constant field stays exactly
-                    // constant). Isolated or nodata (k = 0): keep own (nodata is stored as 0).
-                    *n = if k > 0.0 { 0.5 * (c + s / k) } else { c };
-                }
-            },
-        );
+        for_each_row_sum(cur, w, h, n, &mut self.next, |r, t0, next, sums| {
+            let o = r * w + t0;
+            let cur = &cur[o..o + next.len()];
+            let count = count.at(r, w, t0, next.len());
+            for (((n, &s), &c), &k) in next.iter_mut().zip(sums).zip(cur).zip(count) {
+                // Valid with neighbours: (own + sum/count)/2 (a constant field stays exactly
+                // constant). Isolated or nodata (k = 0): keep own (nodata is stored as 0).
+                *n = if k > 0.0 { 0.5 * (c + s / k) } else { c };
+            }
+        });
         std::mem::swap(&mut self.cur, &mut self.next);
     }
 
@@ -221,6 +227,78 @@ impl Smoother {
                 }
             });
         out
+    }
+}
+
+/// The neighbour count of every cell ([`Smoother`]): 0 at nodata, else the valid diamond
+/// neighbours. Rows of counts `width` long and, per grid row, which of them it uses: one row
+/// per grid row with nodata (and on grids of at most `2n` rows); without nodata the counts
+/// depend on the position only and rows at least `n` from both edges share one, so `2n + 1`
+/// rows (rows 0..n, that interior row, rows `height − n`..`height`) instead of a grid: no 4
+/// bytes per cell to allocate and to read in every pass.
+struct Counts {
+    rows: Vec<f32>,
+    /// Index into `rows` (in rows) of each grid row's counts.
+    of_row: Vec<usize>,
+}
+
+impl Counts {
+    /// One row of counts per grid row.
+    fn grid(rows: Vec<f32>, height: usize) -> Self {
+        Counts {
+            rows,
+            of_row: (0..height).collect(),
+        }
+    }
+
+    /// The counts of a grid without nodata ([`diamond_count_row`] for each row class).
+    fn without_nodata(width: usize, height: usize, n: usize) -> Self {
+        if height > 2 * n {
+            let mut t = vec![0.0f32; (2 * n + 1) * width];
+            for (k, row) in t.chunks_mut(width).enumerate() {
+                let r = if k <= n { k } else { height - n + (k - n - 1) };
+                diamond_count_row(r, width, height, n, row);
+            }
+            let of_row = (0..height)
+                .map(|r| {
+                    if r < n {
+                        r
+                    } else if r + n < height {
+                        n
+                    } else {
+                        n + 1 + (r - (height - n))
+                    }
+                })
+                .collect();
+            Counts { rows: t, of_row }
+        } else {
+            let mut g = vec![0.0f32; width * height];
+            g.par_chunks_mut(width)
+                .enumerate()
+                .for_each(|(r, row)| diamond_count_row(r, width, height, n, row));
+            Counts::grid(g, height)
+        }
+    }
+
+    /// The counts of grid row `r`, columns `c0..c0 + len`, on a grid `width` wide.
+    #[inline]
+    fn at(&self, r: usize, width: usize, c0: usize, len: usize) -> &[f32] {
+        let o = self.of_row[r] * width + c0;
+        &self.rows[o..o + len]
+    }
+}
+
+/// The neighbour counts of row `r` of a `width × height` grid without nodata: for each cell,
+/// the offsets of the diamond `1 ≤ |di| + |dj| ≤ n` that stay inside the grid (what the
+/// neighbour sum of an all-ones mask gives).
+fn diamond_count_row(r: usize, width: usize, height: usize, n: usize, row: &mut [f32]) {
+    for (c, o) in row.iter_mut().enumerate() {
+        let mut k = 0usize;
+        for rr in r.saturating_sub(n)..=(r + n).min(height - 1) {
+            let m = n - rr.abs_diff(r);
+            k += (c + m).min(width - 1) - c.saturating_sub(m) + 1;
+        }
+        *o = (k - 1) as f32;
     }
 }
 
@@ -396,6 +474,45 @@ mod tests {
                     assert!(a.is_nan(), "n={n} cell {i}");
                 } else {
                     assert!((a - b).abs() < 1e-3, "n={n} cell {i}: {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn counts_without_nodata_match_the_mask_sums() {
+        for (w, h) in [
+            (1, 1),
+            (2, 9),
+            (9, 2),
+            (5, 7),
+            (37, 23),
+            (40, 6),
+            (3, 11),
+            (8, 10),
+        ] {
+            for n in 1..=5 {
+                let ones = vec![1.0f32; w * h];
+                let mut summed = vec![0.0f32; w * h];
+                for_each_row_sum(&ones, w, h, n, &mut summed, |_, _, out, sums| {
+                    out.copy_from_slice(sums);
+                });
+                let counts = Counts::without_nodata(w, h, n);
+                let table = if h > 2 * n { 2 * n + 1 } else { h };
+                assert_eq!(counts.rows.len(), table * w, "{w}×{h}, n = {n}");
+                for r in 0..h {
+                    assert_eq!(
+                        counts
+                            .at(r, w, 0, w)
+                            .iter()
+                            .map(|v| v.to_bits())
+                            .collect::<Vec<_>>(),
+                        summed[r * w..(r + 1) * w]
+                            .iter()
+                            .map(|v| v.to_bits())
+                            .collect::<Vec<_>>(),
+                        "{w}×{h}, n = {n}, row {r}"
+                    );
                 }
             }
         }

@@ -149,10 +149,22 @@ struct Corners {
 }
 
 impl Corners {
+    /// Sizes the rows for `w` grid columns: zeros when the size changes; otherwise the rows keep
+    /// their values, all of which [`quad_row`] writes but the last entry, which stays 0 (only
+    /// [`Self::zero`] and the resize write it).
     fn reset(&mut self, w: usize) {
         for v in self.a.iter_mut().chain(self.n.iter_mut()) {
-            v.clear();
-            v.resize(w, 0.0);
+            if v.len() != w {
+                v.clear();
+                v.resize(w, 0.0);
+            }
+        }
+    }
+
+    /// All sums 0 (a quad row outside the grid).
+    fn zero(&mut self) {
+        for v in self.a.iter_mut().chain(self.n.iter_mut()) {
+            v.fill(0.0);
         }
     }
 }
@@ -185,6 +197,7 @@ fn quad_row(
 ) {
     out.reset(w);
     if q < 0 || q as usize + 1 >= rows || w < 2 {
+        out.zero();
         return;
     }
     let q = q as usize;
