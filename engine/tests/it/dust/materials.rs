@@ -260,7 +260,13 @@ fn heldout_survey() {
     }
     files.sort();
     for path in files {
-        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        // The file name with its extension: a model shipped as both `x.glb` and `x/x.obj` (the
+        // textured bunny) writes two sets of renders, not one set twice.
+        let name = path
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .replace('.', "_");
         let t0 = std::time::Instant::now();
         let p = DustParams::from_json(&view(), &Limits::default()).unwrap();
         let (bytes, side) = read_with_sidecars(&path);
