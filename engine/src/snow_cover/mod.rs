@@ -11,6 +11,7 @@ mod coarse;
 pub mod maps;
 pub mod params;
 pub mod probability;
+mod queue;
 pub mod region;
 mod route;
 pub mod run;

@@ -59,12 +59,10 @@
 //! the sweep alone reaches: snow arriving at a slope already at the repose angle runs down to its
 //! toe in one visit instead of being levelled over it.
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
-
 use rayon::prelude::*;
 
 use super::maps::{opposite, SnowMaps, LINK_LOST, LINK_WALL, NEIGHBOURS, SNOW_UNIT_M};
+use super::queue::{Order, SeededQueue};
 use super::settle::{heap_key, key_index, outflow};
 
 /// What one [`Router::route`] did.
@@ -123,8 +121,9 @@ pub(super) struct Router {
     check_list: Vec<u32>,
     /// The cells the erosion lowered (their snow exceeds U: the routing's seeds).
     eroded: Vec<u32>,
-    min_heap: BinaryHeap<Reverse<u64>>,
-    max_heap: BinaryHeap<u64>,
+    /// The erosion's queue (lowest surface first) and the routing's (highest first).
+    min_heap: SeededQueue,
+    max_heap: SeededQueue,
     /// Per `c · layers + k`: snow in transit, given to the cell but not yet resting there (it
     /// does not raise the cell's surface until the cell's turn).
     pending: Vec<u32>,
@@ -322,8 +321,8 @@ impl Router {
             check: vec![false; n],
             check_list: Vec::new(),
             eroded: Vec::new(),
-            min_heap: BinaryHeap::new(),
-            max_heap: BinaryHeap::new(),
+            min_heap: SeededQueue::new(Order::Min),
+            max_heap: SeededQueue::new(Order::Max),
             pending: vec![0; n * nl],
         }
     }
@@ -424,10 +423,11 @@ impl Router {
     /// grows by at most `(P − P₂)·(b′ − b) + 2` (one unit of rounding at each end, both
     /// cells; less where a deposit stops at the ceiling, and a neighbour stopped there is full, no
     /// longer a constraint), and `s` toward the edge limit by `P·(b′ − b) + 1`; a link's
-    /// allowance keeps one unit of margin more.
+    /// allowance keeps one unit of margin more. Without `ALLOWANCE` (a search that keeps no
+    /// schedule) the allowance is not computed and reads infinite.
     #[inline]
     #[allow(clippy::too_many_arguments)]
-    fn seed_test(
+    fn seed_test<const ALLOWANCE: bool>(
         maps: &SnowMaps,
         filter: &SeedFilter,
         cap: &[u32],
@@ -441,11 +441,15 @@ impl Router {
         let nx = maps.nx;
         let l = &maps.layers[k];
         let s = l.snow[c];
-        let p = rate(l.probability[c]);
+        let p = if ALLOWANCE {
+            rate(l.probability[c])
+        } else {
+            0.0
+        };
         let lim = filter.lim[idx];
         let mut test = s > lim;
         let mut allowed = f64::INFINITY;
-        if lim < cap[idx] {
+        if ALLOWANCE && lim < cap[idx] {
             allowed = allowed.min(allowance(i64::from(lim) - i64::from(s) - 2, p));
         }
         let links = l.links[c];
@@ -474,7 +478,9 @@ impl Router {
                         / SNOW_UNIT_M,
                 ));
             }
-            allowed = allowed.min(allowance(slack - 3, p - rate(l2.probability[c2])));
+            if ALLOWANCE {
+                allowed = allowed.min(allowance(slack - 3, p - rate(l2.probability[c2])));
+            }
         }
         let seed = (s > 0 && test && s > keep).then_some(keep);
         (seed, allowed)
@@ -536,7 +542,43 @@ impl Router {
         // cells the next one likely does too, and then a full pass without the bookkeeping
         // (a due step per cell, the buckets) costs less.
         let record = !many;
-        if !self.scheduled || many || self.buckets.len() != cum.len() + 2 {
+        if !record {
+            // Every cell (rayon over rows), keeping no schedule: only the seeds are kept, and
+            // no allowance is computed (the next search tests every cell again).
+            let rows: Vec<(Vec<(u32, u32)>, usize)> = (0..self.nz)
+                .into_par_iter()
+                .map(|j| {
+                    let mut seeds = Vec::new();
+                    let mut tested = 0;
+                    for i in 0..nx {
+                        for k in 0..nl {
+                            let idx = (j * nx + i) * nl + k;
+                            if cap[idx] == 0 && maps.layers[k].snow[idx / nl] == 0 {
+                                // No room: never a seed (as below).
+                                continue;
+                            }
+                            tested += 1;
+                            if let (Some(keep), _) =
+                                Self::seed_test::<false>(maps, filter, cap, nl, idx, i, j, t_prime)
+                            {
+                                seeds.push((idx as u32, keep));
+                            }
+                        }
+                    }
+                    (seeds, tested)
+                })
+                .collect();
+            self.tests_full = rows.iter().map(|r| r.1).sum::<usize>() / nl.max(1);
+            self.moved.clear();
+            self.scheduled = false;
+            let seeds: Vec<(u32, u32)> = rows.into_iter().flat_map(|r| r.0).collect();
+            // The scheduled search lists last step's seeds from `tests`.
+            self.tests.clear();
+            self.tests
+                .extend(seeds.iter().map(|&(idx, keep)| (idx, Some(keep), NEVER)));
+            return seeds;
+        }
+        if !self.scheduled || self.buckets.len() != cum.len() + 2 {
             // Every cell (rayon over rows).
             let tests: Vec<(u32, Option<u32>, u32)> = (0..self.nz)
                 .into_par_iter()
@@ -551,13 +593,8 @@ impl Router {
                                 continue;
                             }
                             let (seed, allowed) =
-                                Self::seed_test(maps, filter, cap, nl, idx, i, j, t_prime);
-                            let due = if record {
-                                due_after(allowed, seed.is_some())
-                            } else {
-                                NEVER
-                            };
-                            row.push((idx as u32, seed, due));
+                                Self::seed_test::<true>(maps, filter, cap, nl, idx, i, j, t_prime);
+                            row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
                         }
                     }
                     row
@@ -566,15 +603,7 @@ impl Router {
             self.tests = tests;
             self.tests_full = self.tests.len() / nl.max(1);
             self.moved.clear();
-            self.scheduled = record;
-            if !record {
-                // No schedule: the next search tests every cell.
-                return self
-                    .tests
-                    .iter()
-                    .filter_map(|&(idx, seed, _)| seed.map(|keep| (idx, keep)))
-                    .collect();
-            }
+            self.scheduled = true;
             self.due.iter_mut().for_each(|d| *d = NEVER);
             self.buckets.iter_mut().for_each(Vec::clear);
             self.buckets.resize(cum.len() + 2, Vec::new());
@@ -614,7 +643,7 @@ impl Router {
                 .with_min_len(256)
                 .map(|&idx| {
                     let c = idx as usize / nl;
-                    let (seed, allowed) = Self::seed_test(
+                    let (seed, allowed) = Self::seed_test::<true>(
                         maps,
                         filter,
                         cap,
@@ -675,9 +704,10 @@ impl Router {
             self.eroded.push(idx as u32);
             let (c, k) = (idx / nl, idx % nl);
             self.min_heap
-                .push(Reverse(Self::surface_key(maps, &self.cap, k, c, cap, idx)));
+                .seed(Self::surface_key(maps, &self.cap, k, c, cap, idx));
         }
-        while let Some(Reverse(key)) = self.min_heap.pop() {
+        self.min_heap.sort_seeds();
+        while let Some(key) = self.min_heap.pop() {
             let idx = key_index(key);
             let (c, k) = (idx / nl, idx % nl);
             if Self::surface_key(maps, &self.cap, k, c, self.lb.get(maps, idx, c, k), idx) != key {
@@ -712,9 +742,8 @@ impl Router {
                             self.eroded.push(idx3 as u32);
                         }
                         self.lb.set(idx3, cand);
-                        self.min_heap.push(Reverse(Self::surface_key(
-                            maps, &self.cap, k3, c2, cand, idx3,
-                        )));
+                        self.min_heap
+                            .push(Self::surface_key(maps, &self.cap, k3, c2, cand, idx3));
                     }
                 }
             }
@@ -731,8 +760,9 @@ impl Router {
             self.queued[idx] = true;
             let s = maps.layers[k].snow[c];
             self.max_heap
-                .push(Self::surface_key(maps, &self.cap, k, c, s, idx));
+                .seed(Self::surface_key(maps, &self.cap, k, c, s, idx));
         }
+        self.max_heap.sort_seeds();
         self.check_list.clear();
         let mut stuck: Vec<u32> = Vec::new();
         let mut rounds = 0;
@@ -999,11 +1029,22 @@ impl Router {
         }
         let mut all = touched;
         all.append(&mut self.check_list);
-        for &c in &all {
-            self.check[c as usize] = false;
+        // In cell order, each once (`check` marks them once): a pass over the marks when they
+        // are many (the bunny: 70–96 k cells a step), else a sort of the list.
+        if all.len().saturating_mul(8) > self.check.len() {
+            all.clear();
+            for (c, f) in self.check.iter_mut().enumerate() {
+                if *f {
+                    *f = false;
+                    all.push(c as u32);
+                }
+            }
+        } else {
+            for &c in &all {
+                self.check[c as usize] = false;
+            }
+            all.sort_unstable();
         }
-        all.sort_unstable();
-        all.dedup();
         // The moved cells and their neighbours: tested at the next seed search.
         self.moved.extend_from_slice(&all);
         let maps_ref: &SnowMaps = maps;
