@@ -96,6 +96,11 @@ pub(super) struct Router {
     lb: Bound,
     /// Per `c · layers + k`: the cell's capacity ([`super::maps::MapLayer::capacity`]; static).
     cap: Vec<u32>,
+    /// The `c · layers + k` with room (capacity > 0; static), in index order, and where each
+    /// row's start in it (`nz + 1` offsets): the cells a full seed search tests (a cell with no
+    /// room never holds snow: deposits and moves stop at the capacity).
+    room: Vec<u32>,
+    room_rows: Vec<usize>,
     /// The seed search's integer pre-tests (see [`Router::seed_test`]).
     filter: SeedFilter,
     /// Per `c · layers + k`: the step at which the seed test must run again ([`NEVER`]: only
@@ -296,14 +301,29 @@ impl Router {
     pub(super) fn new(maps: &SnowMaps) -> Self {
         let n = maps.nx * maps.nz;
         let nl = maps.layers.len();
+        let cap: Vec<u32> = (0..n * nl)
+            .map(|idx| maps.layers[idx % nl].capacity(idx / nl))
+            .collect();
+        let mut room = Vec::new();
+        let mut room_rows = vec![0];
+        for row in cap.chunks(maps.nx * nl) {
+            let start = room_rows.len() - 1;
+            let base = (start * maps.nx * nl) as u32;
+            room.extend(
+                (0..row.len() as u32)
+                    .filter(|&o| row[o as usize] > 0)
+                    .map(|o| base + o),
+            );
+            room_rows.push(room.len());
+        }
         Self {
             nx: maps.nx,
             nz: maps.nz,
             nl,
             lb: Bound::new(n * nl),
-            cap: (0..n * nl)
-                .map(|idx| maps.layers[idx % nl].capacity(idx / nl))
-                .collect(),
+            cap,
+            room,
+            room_rows,
             filter: SeedFilter {
                 t_prime: f64::NAN,
                 lim: Vec::new(),
@@ -535,6 +555,7 @@ impl Router {
             }
         };
         let (cap, filter) = (&self.cap, &self.filter);
+        let (room, room_rows) = (&self.room, &self.room_rows);
         // Every cell when the moved cells are a large share of them (the Stanford bunny: most
         // of its flanks move every step): a pass in row order costs less than the list.
         let many = self.moved.len().saturating_mul(2) > self.tests_full;
@@ -549,23 +570,17 @@ impl Router {
                 .into_par_iter()
                 .map(|j| {
                     let mut seeds = Vec::new();
-                    let mut tested = 0;
-                    for i in 0..nx {
-                        for k in 0..nl {
-                            let idx = (j * nx + i) * nl + k;
-                            if cap[idx] == 0 && maps.layers[k].snow[idx / nl] == 0 {
-                                // No room: never a seed (as below).
-                                continue;
-                            }
-                            tested += 1;
-                            if let (Some(keep), _) =
-                                Self::seed_test::<false>(maps, filter, cap, nl, idx, i, j, t_prime)
-                            {
-                                seeds.push((idx as u32, keep));
-                            }
+                    let row = &room[room_rows[j]..room_rows[j + 1]];
+                    for &idx in row {
+                        let idx = idx as usize;
+                        let i = (idx / nl) % nx;
+                        if let (Some(keep), _) =
+                            Self::seed_test::<false>(maps, filter, cap, nl, idx, i, j, t_prime)
+                        {
+                            seeds.push((idx as u32, keep));
                         }
                     }
-                    (seeds, tested)
+                    (seeds, row.len())
                 })
                 .collect();
             self.tests_full = rows.iter().map(|r| r.1).sum::<usize>() / nl.max(1);
@@ -584,18 +599,12 @@ impl Router {
                 .into_par_iter()
                 .flat_map_iter(|j| {
                     let mut row = Vec::new();
-                    for i in 0..nx {
-                        for k in 0..nl {
-                            let idx = (j * nx + i) * nl + k;
-                            if cap[idx] == 0 && maps.layers[k].snow[idx / nl] == 0 {
-                                // No room: it never holds snow (deposits and moves stop at
-                                // the capacity), so it never becomes a seed.
-                                continue;
-                            }
-                            let (seed, allowed) =
-                                Self::seed_test::<true>(maps, filter, cap, nl, idx, i, j, t_prime);
-                            row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
-                        }
+                    for &idx in &room[room_rows[j]..room_rows[j + 1]] {
+                        let idx = idx as usize;
+                        let i = (idx / nl) % nx;
+                        let (seed, allowed) =
+                            Self::seed_test::<true>(maps, filter, cap, nl, idx, i, j, t_prime);
+                        row.push((idx as u32, seed, due_after(allowed, seed.is_some())));
                     }
                     row
                 })
