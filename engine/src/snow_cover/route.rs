@@ -54,7 +54,7 @@
 //! Mass: integer units throughout ([`super::maps::SNOW_UNIT_M`]); every transfer is exact, so
 //! `fallen = resting + lost` to the unit. Both passes are serial with a total order (surface,
 //! then cell and layer index), so the result does not depend on the thread count; the seed
-//! searches and the check run on rayon. The state reached is *a* fixed point of the paper's rule
+//! searches, the sort of each pass's seeds ([`super::queue`]) and the check run on rayon. The state reached is *a* fixed point of the paper's rule
 //! (no cell with snow steeper than the repose angle, plus the tolerance), not necessarily the one
 //! the sweep alone reaches: snow arriving at a slope already at the repose angle runs down to its
 //! toe in one visit instead of being levelled over it.
