@@ -207,6 +207,25 @@ pub(crate) fn to_heights(
         DecodingResult::I32(v) => band(&v, cells, samples, |x| int(f64::from(x))),
         DecodingResult::U64(v) => band(&v, cells, samples, |x| int(x as f64)),
         DecodingResult::I64(v) => band(&v, cells, samples, |x| int(x as f64)),
+        // One f32 band (the usual float DEM): the decoder's buffer becomes the heights, nodata
+        // replaced in place, instead of a copy into a second grid of the same size.
+        DecodingResult::F32(mut v) if samples == 1 => {
+            if v.len() < cells {
+                return Err(corrupt(format!(
+                    "decoded {} samples, expected {cells}",
+                    v.len()
+                )));
+            }
+            v.truncate(cells);
+            if let Some(n) = nd32 {
+                for x in &mut v {
+                    if *x == n || (n.is_nan() && x.is_nan()) {
+                        *x = f32::NAN;
+                    }
+                }
+            }
+            Ok(v)
+        }
         DecodingResult::F32(v) => band(&v, cells, samples, |x| match nd32 {
             Some(n) if x == n || (n.is_nan() && x.is_nan()) => f32::NAN,
             _ => x,
