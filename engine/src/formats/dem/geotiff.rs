@@ -169,19 +169,19 @@ pub(crate) fn to_heights(
     samples: usize,
     nodata: Option<f64>,
 ) -> Result<Vec<f32>, InputError> {
+    fn enough(len: usize, needed: usize) -> Result<(), InputError> {
+        if len < needed {
+            return Err(corrupt(format!("decoded {len} samples, expected {needed}")));
+        }
+        Ok(())
+    }
     fn band<T: Copy>(
         v: &[T],
         cells: usize,
         samples: usize,
         f: impl Fn(T) -> f32,
     ) -> Result<Vec<f32>, InputError> {
-        let needed = cells.saturating_mul(samples);
-        if v.len() < needed {
-            return Err(corrupt(format!(
-                "decoded {} samples, expected {needed}",
-                v.len()
-            )));
-        }
+        enough(v.len(), cells.saturating_mul(samples))?;
         Ok(v.iter()
             .step_by(samples)
             .take(cells)
@@ -198,6 +198,10 @@ pub(crate) fn to_heights(
         }
     };
     let nd32 = nodata.map(|n| n as f32);
+    let float = |x: f32| match nd32 {
+        Some(n) if x == n || (n.is_nan() && x.is_nan()) => f32::NAN,
+        _ => x,
+    };
     match image {
         DecodingResult::U8(v) => band(&v, cells, samples, |x| int(f64::from(x))),
         DecodingResult::I8(v) => band(&v, cells, samples, |x| int(f64::from(x))),
@@ -210,26 +214,14 @@ pub(crate) fn to_heights(
         // One f32 band (the usual float DEM): the decoder's buffer becomes the heights, nodata
         // replaced in place, instead of a copy into a second grid of the same size.
         DecodingResult::F32(mut v) if samples == 1 => {
-            if v.len() < cells {
-                return Err(corrupt(format!(
-                    "decoded {} samples, expected {cells}",
-                    v.len()
-                )));
-            }
+            enough(v.len(), cells)?;
             v.truncate(cells);
-            if let Some(n) = nd32 {
-                for x in &mut v {
-                    if *x == n || (n.is_nan() && x.is_nan()) {
-                        *x = f32::NAN;
-                    }
-                }
+            if nd32.is_some() {
+                v.iter_mut().for_each(|x| *x = float(*x));
             }
             Ok(v)
         }
-        DecodingResult::F32(v) => band(&v, cells, samples, |x| match nd32 {
-            Some(n) if x == n || (n.is_nan() && x.is_nan()) => f32::NAN,
-            _ => x,
-        }),
+        DecodingResult::F32(v) => band(&v, cells, samples, float),
         DecodingResult::F64(v) => band(&v, cells, samples, |x| match nodata {
             Some(n) if x == n || (n.is_nan() && x.is_nan()) => f32::NAN,
             _ => x as f32,
