@@ -277,24 +277,7 @@ impl<'a> TerrainAccel<'a> {
                 let lv = &self.levels[level - 1];
                 let m = f64::from(lv.max[cj * lv.w + ci]);
                 margin = min(yt, yend) - m;
-                let lim = m + self.eps_y;
-                if min(yt, yend) <= lim {
-                    // A descending ray above the node's maximum at its entry clears everything
-                    // in the node until it sinks to `lim`: advance to a `tc` before that (checked
-                    // as the walk computes heights, so every child it passes would have been
-                    // skipped, and every cell of them rejected), then descend there.
-                    if yt > lim {
-                        let ta = (lim - r.oy) / r.dy;
-                        if ta > t {
-                            // A hair short of the crossing: its height rounds above `lim`.
-                            let tc = t + (min(ta, tend) - t) * (1.0 - 1e-9);
-                            let yc = r.oy + r.dy * tc;
-                            if yc > lim {
-                                t = tc;
-                                yt = yc;
-                            }
-                        }
-                    }
+                if min(yt, yend) <= m + self.eps_y {
                     // Descend into the child holding the ray at `t` (`child`, ties toward the
                     // direction of travel).
                     level -= 1;
