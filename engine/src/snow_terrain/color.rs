@@ -9,33 +9,91 @@ use rayon::prelude::*;
 
 use crate::render::image::srgb8_to_linear;
 
+/// Grid points that are sea: those with `heights[k] <= level` (NaN heights are not) take the
+/// linear `color` instead of the snow/rock blend.
+#[derive(Debug, Clone, Copy)]
+pub struct Sea<'a> {
+    /// The DEM's heights (original, not exaggerated), one per grid point.
+    pub heights: &'a [f32],
+    pub level: f32,
+    pub color: [f32; 3],
+}
+
+/// The blend `t·rock + (1 − t)·snow` of one grid point (NaN `t`, nodata, as rock).
+#[inline]
+fn blend(t: f32, rock: &[f32; 3], snow: &[f32; 3]) -> [f32; 3] {
+    let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
+    std::array::from_fn(|c| t * rock[c] + (1.0 - t) * snow[c])
+}
+
 /// Linear albedo per grid point. `t` is the descriptor (NaN where nodata, coloured as rock).
 /// Allocates the output.
 pub fn albedo(t: &[f32], rock_srgb: [u8; 3], snow_srgb: [u8; 3]) -> Vec<[f32; 3]> {
+    albedo_with_sea(t, rock_srgb, snow_srgb, None)
+}
+
+/// [`albedo`] with the sea's colour where `sea` says (in the same pass: the same values as
+/// overwriting [`albedo`]'s, without a second pass over the colours).
+pub fn albedo_with_sea(
+    t: &[f32],
+    rock_srgb: [u8; 3],
+    snow_srgb: [u8; 3],
+    sea: Option<Sea>,
+) -> Vec<[f32; 3]> {
     let rock = rock_srgb.map(srgb8_to_linear);
     let snow = snow_srgb.map(srgb8_to_linear);
-    t.par_iter()
-        .map(|&t| {
-            let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
-            [
-                t * rock[0] + (1.0 - t) * snow[0],
-                t * rock[1] + (1.0 - t) * snow[1],
-                t * rock[2] + (1.0 - t) * snow[2],
-            ]
-        })
-        .collect()
+    match sea {
+        None => t.par_iter().map(|&t| blend(t, &rock, &snow)).collect(),
+        Some(sea) => {
+            assert_eq!(sea.heights.len(), t.len(), "one height per grid point");
+            t.par_iter()
+                .zip(sea.heights.par_iter())
+                .map(|(&t, &h)| {
+                    if h <= sea.level {
+                        sea.color
+                    } else {
+                        blend(t, &rock, &snow)
+                    }
+                })
+                .collect()
+        }
+    }
 }
 
 /// [`albedo`] with a rock colour per grid point (linear RGB, from an orthophoto).
 pub fn albedo_with_rock(t: &[f32], rock: &[[f32; 3]], snow_srgb: [u8; 3]) -> Vec<[f32; 3]> {
+    albedo_with_rock_and_sea(t, rock, snow_srgb, None)
+}
+
+/// [`albedo_with_rock`] with the sea's colour where `sea` says (see [`albedo_with_sea`]).
+pub fn albedo_with_rock_and_sea(
+    t: &[f32],
+    rock: &[[f32; 3]],
+    snow_srgb: [u8; 3],
+    sea: Option<Sea>,
+) -> Vec<[f32; 3]> {
     let snow = snow_srgb.map(srgb8_to_linear);
-    t.par_iter()
-        .zip(rock.par_iter())
-        .map(|(&t, rock)| {
-            let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
-            std::array::from_fn(|c| t * rock[c] + (1.0 - t) * snow[c])
-        })
-        .collect()
+    match sea {
+        None => t
+            .par_iter()
+            .zip(rock.par_iter())
+            .map(|(&t, rock)| blend(t, rock, &snow))
+            .collect(),
+        Some(sea) => {
+            assert_eq!(sea.heights.len(), t.len(), "one height per grid point");
+            t.par_iter()
+                .zip(rock.par_iter())
+                .zip(sea.heights.par_iter())
+                .map(|((&t, rock), &h)| {
+                    if h <= sea.level {
+                        sea.color
+                    } else {
+                        blend(t, rock, &snow)
+                    }
+                })
+                .collect()
+        }
+    }
 }
 
 #[cfg(test)]

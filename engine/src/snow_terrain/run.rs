@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::altitude::{snow_by_elevation_decile_of_t, ElevationHistogram};
-use super::color::{albedo, albedo_with_rock};
+use super::color::{albedo_with_rock_and_sea, albedo_with_sea, Sea};
 use super::descriptor;
 use super::ortho::RockColors;
 use super::params::{SnowTerrainParams, TerrainOutput};
@@ -78,22 +78,22 @@ fn view_exaggeration(relief: Option<(f64, f64)>, p: &SnowTerrainParams) -> f32 {
 }
 
 /// Colours of the descriptor `t` for the given parameters (the rock colour per grid point when
-/// an orthophoto gives it).
+/// an orthophoto gives it), and the sea (`sea_color`) at grid points at or below `sea_level`,
+/// which hold no snow: one pass.
 fn colors(dem: &Dem, t: &[f32], p: &SnowTerrainParams, rock: Option<&RockColors>) -> Vec<[f32; 3]> {
     let snow = p.snow_color.srgb8();
-    let mut c = match rock {
-        Some(r) => albedo_with_rock(t, &r.rgb, snow),
-        None => albedo(t, p.rock_color.srgb8(), snow),
+    let sea = match (&p.sea_color, p.descriptor.sea_level) {
+        (Some(sea), Some(level)) => Some(Sea {
+            heights: &dem.heights,
+            level,
+            color: sea.srgb8().map(crate::render::image::srgb8_to_linear),
+        }),
+        _ => None,
     };
-    // The sea (`sea_color`): grid points at or below `sea_level`, which hold no snow.
-    if let (Some(sea), Some(level)) = (&p.sea_color, p.descriptor.sea_level) {
-        let sea = sea.srgb8().map(crate::render::image::srgb8_to_linear);
-        c.par_iter_mut()
-            .zip(dem.heights.par_iter())
-            .filter(|(_, &h)| h <= level)
-            .for_each(|(c, _)| *c = sea);
+    match rock {
+        Some(r) => albedo_with_rock_and_sea(t, &r.rgb, snow, sea),
+        None => albedo_with_sea(t, p.rock_color.srgb8(), snow, sea),
     }
-    c
 }
 
 /// `descriptor.png`: t as grey (0 = snow black… no: 255·t, so snow is dark and rock bright is
