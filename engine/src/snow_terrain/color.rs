@@ -108,4 +108,35 @@ mod tests {
         let mid = (srgb8_to_linear(10) + srgb8_to_linear(250)) / 2.0;
         assert!((a[2][0] - mid).abs() < 1e-6);
     }
+
+    #[test]
+    fn the_sea_in_the_pass_is_the_overwritten_blend() {
+        let t = [0.0, 0.3, f32::NAN, 1.0, 0.7];
+        let heights = [5.0, -1.0, 0.0, f32::NAN, 0.0];
+        let sea_color = [0.1, 0.2, 0.3];
+        let sea = Sea {
+            heights: &heights,
+            level: 0.0,
+            color: sea_color,
+        };
+        let mut want = albedo(&t, [10, 20, 30], [250, 250, 250]);
+        for (c, &h) in want.iter_mut().zip(&heights) {
+            if h <= 0.0 {
+                *c = sea_color;
+            }
+        }
+        let got = albedo_with_sea(&t, [10, 20, 30], [250, 250, 250], Some(sea));
+        assert_eq!(got, want);
+        let rock = vec![[0.4, 0.5, 0.6]; t.len()];
+        let mut want = albedo_with_rock(&t, &rock, [250, 250, 250]);
+        for (c, &h) in want.iter_mut().zip(&heights) {
+            if h <= 0.0 {
+                *c = sea_color;
+            }
+        }
+        assert_eq!(
+            albedo_with_rock_and_sea(&t, &rock, [250, 250, 250], Some(sea)),
+            want
+        );
+    }
 }
