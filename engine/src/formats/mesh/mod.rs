@@ -22,8 +22,8 @@
 //! - **Safety net.** The third-party parsers (`gltf`, `tobj`, `stl_io`, `ply-rs-bw`) run inside
 //!   [`std::panic::catch_unwind`]; a panic on hostile bytes becomes `Corrupt`.
 //!
-//! Cost: one pass over the file (two for OBJ), plus the mesh itself; glTF additionally holds the
-//! decoded `data:` buffers while reading.
+//! Cost: one pass over the file (two for OBJ, on all threads for its common subset), plus the
+//! mesh itself; glTF additionally holds the decoded `data:` buffers while reading.
 //!
 //! - **Materials** (`crate::geom::mesh`, *Materials*): glTF base colour factors, `COLOR_0` and
 //!   base-colour textures; OBJ `Kd`/`d`/`map_Kd` from its MTL; PLY vertex colours. Textures are

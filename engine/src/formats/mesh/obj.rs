@@ -17,6 +17,11 @@
 //!   lines against the limits, and checks every face index against the number of `v`/`vt`/`vn`
 //!   (relative indices against those seen so far, as `tobj` resolves them), because `tobj`
 //!   indexes its arrays unchecked and would panic on an index out of range.
+//! - **The common subset in parallel** (issue 19): a file of only `v x y z`, `vt`, `vn`, `f` (3+
+//!   corners), `o`/`g` and ignored statements is read by [`super::obj_fast`] on all threads into
+//!   the very models `tobj` returns; anything else (`mtllib`, `usemtl`, `l`, vertex colours, a
+//!   non-ASCII byte, anything the checking pass or `tobj` would refuse) takes the `tobj` path
+//!   below, so its errors and limits are unchanged.
 //! - The default up axis is Y.
 
 use std::io::BufReader;

@@ -259,10 +259,9 @@ fn parse(chunk: &[u8], base: [u64; 3], total: [u64; 3], opts: &MeshOptions) -> O
                     for c in [corner[0], corner[1], pair[1]] {
                         p.cv.push(c[0]);
                         for (k, list) in [(1, &mut p.ct), (2, &mut p.cn)] {
-                            if c[k] != MISSING && list.is_empty() {
+                            if c[k] != MISSING || !list.is_empty() {
+                                // The corners before the first with this index lack it.
                                 list.resize(p.cv.len() - 1, MISSING);
-                            }
-                            if !list.is_empty() {
                                 list.push(c[k]);
                             }
                         }
