@@ -249,8 +249,9 @@ fn raster_batch(depth: &mut [f32], wd: usize, ht: usize, v: &[[[f32; LANES]; 3];
     // The 2 × 2 candidate centres (x0 + dx, y0 + dy) of every lane; texel indices as floats
     // (exact: below 4096² = 2²⁴).
     let mut z = [[0f32; LANES]; 4];
-    let mut inside = [[false; LANES]; 4];
     let mut idx = [[0f32; LANES]; 4];
+    // Per lane, bit `cand` set when that candidate is inside its triangle and box.
+    let mut mask = [0u32; LANES];
     for cand in 0..4 {
         let (dx, dy) = ((cand & 1) as f32, (cand >> 1) as f32);
         for q in 0..LANES {
@@ -259,12 +260,13 @@ fn raster_batch(depth: &mut [f32], wd: usize, ht: usize, v: &[[[f32; LANES]; 3];
             let e1 = k[3][q] * xf + (k[4][q] * yf + k[5][q]);
             let e2 = k[6][q] * xf + (k[7][q] * yf + k[8][q]);
             z[cand][q] = k[9][q] * xf + (k[10][q] * yf + k[11][q]);
-            inside[cand][q] = ok[q]
+            let inside = ok[q]
                 & (xf <= x1[q])
                 & (yf <= y1[q])
                 & (e0 >= EDGE_EPS)
                 & (e1 >= EDGE_EPS)
                 & (e2 >= EDGE_EPS);
+            mask[q] |= u32::from(inside) << cand;
             let (xc, yc) = (
                 if xf < xmax { xf } else { xmax },
                 if yf < ymax { yf } else { ymax },
@@ -274,10 +276,17 @@ fn raster_batch(depth: &mut [f32], wd: usize, ht: usize, v: &[[[f32; LANES]; 3];
     }
     for q in 0..n {
         if x1[q] <= x0[q] + 1.0 && y1[q] <= y0[q] + 1.0 {
-            for cand in 0..4 {
+            // Only the candidates inside (most of a fine mesh's triangles cover one texel or
+            // none): the same writes as testing all four.
+            let mut m = mask[q];
+            while m != 0 {
+                let cand = m.trailing_zeros() as usize;
+                m &= m - 1;
                 if let Some(d) = depth.get_mut(idx[cand][q] as usize) {
                     let zq = z[cand][q];
-                    *d = if inside[cand][q] & (zq > *d) { zq } else { *d };
+                    if zq > *d {
+                        *d = zq;
+                    }
                 }
             }
             continue;

@@ -22,8 +22,8 @@
 //! - **Safety net.** The third-party parsers (`gltf`, `tobj`, `stl_io`, `ply-rs-bw`) run inside
 //!   [`std::panic::catch_unwind`]; a panic on hostile bytes becomes `Corrupt`.
 //!
-//! Cost: one pass over the file (two for OBJ), plus the mesh itself; glTF additionally holds the
-//! decoded `data:` buffers while reading.
+//! Cost: one pass over the file (two for OBJ, on all threads for its common subset), plus the
+//! mesh itself; glTF additionally holds the decoded `data:` buffers while reading.
 //!
 //! - **Materials** (`crate::geom::mesh`, *Materials*): glTF base colour factors, `COLOR_0` and
 //!   base-colour textures; OBJ `Kd`/`d`/`map_Kd` from its MTL; PLY vertex colours. Textures are
@@ -42,6 +42,7 @@
 
 mod gltf;
 mod obj;
+mod obj_fast;
 mod ply;
 mod stl;
 pub mod texture;
@@ -241,6 +242,15 @@ pub fn decode_mesh(
     opts: &MeshOptions,
 ) -> Result<Mesh, InputError> {
     decode_mesh_with(bytes, filename, opts, Sidecars::default())
+}
+
+/// An OBJ through the `tobj` path alone (no parallel reader): the reference the `mesh_decode`
+/// example times [`decode_mesh`] against. Test and benchmark builds only.
+#[cfg(feature = "testkit")]
+#[doc(hidden)]
+pub fn decode_obj_tobj(bytes: &[u8], opts: &MeshOptions) -> Result<Mesh, InputError> {
+    let decoded = obj::decode_with(bytes, opts, Sidecars::default(), false)?;
+    finish(decoded, "OBJ", opts)
 }
 
 /// [`decode_mesh`] with the files the mesh refers to ([`Sidecars`]): OBJ material libraries and

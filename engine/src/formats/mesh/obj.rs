@@ -17,6 +17,11 @@
 //!   lines against the limits, and checks every face index against the number of `v`/`vt`/`vn`
 //!   (relative indices against those seen so far, as `tobj` resolves them), because `tobj`
 //!   indexes its arrays unchecked and would panic on an index out of range.
+//! - **The common subset in parallel** (issue 19): a file of only `v x y z`, `vt`, `vn`, `f` (3+
+//!   corners), `o`/`g` and ignored statements is read by [`super::obj_fast`] on all threads into
+//!   the very models `tobj` returns; anything else (`mtllib`, `usemtl`, `l`, vertex colours, a
+//!   non-ASCII byte, anything the checking pass or `tobj` would refuse) takes the `tobj` path
+//!   below, so its errors and limits are unchanged.
 //! - The default up axis is Y.
 
 use std::io::BufReader;
@@ -24,6 +29,7 @@ use std::io::BufReader;
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use super::obj_fast;
 use super::texture::{decode_image, store_side, ImageError};
 use super::{
     check_counts, normalize_ref, srgb_to_linear, Builder, MeshOptions, PartData, Sidecars, GREY,
@@ -184,11 +190,14 @@ pub(super) fn mtl_textures(bytes: &[u8]) -> Vec<String> {
         .collect()
 }
 
-pub(super) fn decode(
+/// The models and materials of `bytes` through the checking pass and `tobj`; notes about
+/// missing libraries go to `builder`.
+fn tobj_models(
     bytes: &[u8],
     opts: &MeshOptions,
     sidecars: Sidecars<'_>,
-) -> Result<Mesh, InputError> {
+    builder: &mut Builder,
+) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>), InputError> {
     let counts = check_pass(bytes, opts)?;
     check_counts(counts.vertices, counts.triangles, opts)?;
     if counts.triangles == 0 {
@@ -203,7 +212,6 @@ pub(super) fn decode(
         ignore_lines: true,
     };
     let mut reader = BufReader::new(bytes);
-    let mut builder = Builder::new();
     for lib in material_libraries(bytes) {
         match sidecars.get(&lib) {
             None => builder.note(format!(
@@ -227,8 +235,31 @@ pub(super) fn decode(
         }
     })
     .map_err(|e| corrupt(e.to_string()))?;
-    let materials = materials.unwrap_or_default();
+    Ok((models, materials.unwrap_or_default()))
+}
 
+pub(super) fn decode(
+    bytes: &[u8],
+    opts: &MeshOptions,
+    sidecars: Sidecars<'_>,
+) -> Result<Mesh, InputError> {
+    decode_with(bytes, opts, sidecars, true)
+}
+
+/// [`decode`]; `fast` tries the parallel reader of the common subset first ([`super::obj_fast`]:
+/// the same models, or `None` and the `tobj` path below).
+pub(super) fn decode_with(
+    bytes: &[u8],
+    opts: &MeshOptions,
+    sidecars: Sidecars<'_>,
+    fast: bool,
+) -> Result<Mesh, InputError> {
+    let mut builder = Builder::new();
+    let (models, materials) = match fast.then(|| obj_fast::models(bytes, opts)).flatten() {
+        // No `mtllib` in the subset: no materials, no notes.
+        Some(models) => (models, Vec::new()),
+        None => tobj_models(bytes, opts, sidecars, &mut builder)?,
+    };
     // The textures the used materials name, decoded once each.
     let mut used: Vec<String> = Vec::new();
     for model in &models {
@@ -352,4 +383,126 @@ pub(super) fn decode(
         check_counts(builder.vertex_count() as u64, 0, opts)?;
     }
     Ok(builder.build_with(textures))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parallel reader and the `tobj` path give the same result (mesh or error), bit for bit.
+    fn same(text: &str, opts: &MeshOptions) -> bool {
+        let fast = decode_with(text.as_bytes(), opts, Sidecars(&[]), true);
+        let slow = decode_with(text.as_bytes(), opts, Sidecars(&[]), false);
+        assert_eq!(format!("{fast:?}"), format!("{slow:?}"), "{text}");
+        obj_fast::models(text.as_bytes(), opts).is_some()
+    }
+
+    #[test]
+    fn fast_reader_matches_tobj() {
+        let opts = MeshOptions::default();
+        let cases = [
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\nf -1 -2 -3\n",
+            "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no b\nf 3 2 1\ng\nf 1 3 2\no  end \n",
+            "  o spaced\r\nv 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 3\r\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0 9\nvt 0 1\nvn 0 0 1\n\
+             f 1/1/1 2/2/1 3/3/1\nf 1//1 2//1 3//1\nf 1/1 2/2 3/3\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 2 2\nv 3 3 3\nf 1 2 3 4 5\n# f 1 2\ns off\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2\nf 1 2 3\n",
+            "v 0 0 0 1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n",
+            "v 0 0 x\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\nvt 0 0\n",
+            "f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\n",
+            "o a\nf 1 2 3\no b\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/2/3/ 2 3\nf 1/1/1/1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf +1 +2 +3\nf 01 2 3 \nf 1 2 99999999999999999999\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nusemtl x\nf 1 2 3\n",
+            "mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\no é\nf 1 2 3\n",
+            "v 0 0 0\x0bv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 1 0 0\nv inf 1 0\nf 1 2 3\n",
+            "# nothing\n",
+            "",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no tail\n",
+        ];
+        let used = cases.iter().filter(|c| same(c, &opts)).count();
+        assert!(used >= 8, "{used}");
+        // Limits.
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 3 4\nf 1 2 3 4\n";
+        for (v, t) in [(3, 100), (4, 3), (4, 4), (100, 100)] {
+            let opts = MeshOptions {
+                max_vertices: v,
+                max_triangles: t,
+                ..MeshOptions::default()
+            };
+            same(text, &opts);
+        }
+    }
+
+    /// Random OBJ-like text, in several chunks (over 1 MiB), mixing the subset with what it sends
+    /// to `tobj`.
+    #[test]
+    fn fast_reader_matches_tobj_on_random_text() {
+        let mut s = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut rnd = move |n: u64| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s % n
+        };
+        let mut used = 0;
+        for round in 0..24 {
+            let mut text = String::new();
+            let (mut nv, mut nt, mut nn) = (0i64, 0i64, 0i64);
+            let big = round % 4 == 0;
+            let lines = if big { 60_000 } else { 40 };
+            let rare = if round % 3 == 0 { 1000 } else { 1_000_000 };
+            for _ in 0..lines {
+                let r = rnd(100);
+                if r < 35 {
+                    text += &format!("v {} {}.5 -{}e-1\n", rnd(9), rnd(7), rnd(5));
+                    nv += 1;
+                } else if r < 42 && round % 2 == 1 {
+                    text += &format!("vt 0.{} {}\n", rnd(9), rnd(3));
+                    nt += 1;
+                } else if r < 48 && round % 2 == 1 {
+                    text += "vn 0 1 0\n";
+                    nn += 1;
+                } else if r < 95 && nv > 0 {
+                    let corners = 3 + rnd(3) * rnd(2);
+                    text += "f";
+                    for _ in 0..corners {
+                        let v = if rnd(4) == 0 {
+                            -(1 + rnd(nv as u64) as i64)
+                        } else {
+                            1 + rnd(nv as u64) as i64
+                        };
+                        text += &format!(" {v}");
+                        if nt > 0 && rnd(3) != 0 {
+                            text += &format!("/{}", 1 + rnd(nt as u64));
+                        } else if nn > 0 {
+                            text += "/";
+                        }
+                        if nn > 0 && rnd(3) != 0 {
+                            text += &format!("/{}", -(1 + rnd(nn as u64) as i64));
+                        }
+                    }
+                    text += "\n";
+                } else if r < 97 {
+                    text += ["o a\n", "g b c\n", "g\n", "s 1\n"][rnd(4) as usize];
+                } else if rnd(rare) == 0 {
+                    text += ["l 1 2\n", "f 1 2\n", "v 1 2\n", "f 1 2 0\n"][rnd(4) as usize];
+                } else {
+                    text += "# c\n";
+                }
+            }
+            used += usize::from(same(&text, &MeshOptions::default()));
+        }
+        assert!(used >= 10, "{used}");
+    }
 }
