@@ -32,8 +32,9 @@ fn main() {
         "steps | resting m³ | lost m³ | mean |Δd| mm | share of mean d | p99 |Δd| mm | cells off > max(5 mm, 20 %) | residual tan | snowfall ms"
     );
     for &steps in &list {
-        let p = SnowCoverParams::from_json(&serde_json::json!({ "steps": steps }), &Limits::default())
-            .expect("valid params");
+        let p =
+            SnowCoverParams::from_json(&serde_json::json!({ "steps": steps }), &Limits::default())
+                .expect("valid params");
         let model = p.model(height);
         let t0 = Instant::now();
         let (maps, rep) = simulate(&mesh, &model, &NoControl, |_, _| {}).expect("runs");
