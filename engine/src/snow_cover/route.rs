@@ -32,7 +32,11 @@
 //!    on the bunny 60–98 k cells per step found no room and waited). Each cell's final surface
 //!    is at least its U (it keeps at least that, and a receiver only gains until its turn), so
 //!    what a cell kept has at most the slope `T'` toward every neighbour's *final* surface:
-//!    nothing needs revisiting.
+//!    nothing needs revisiting. What finds no room below K goes on, in transit too, to the
+//!    neighbours still waiting in the heap whose U lies below K (their resting surface is
+//!    higher only because their own excess has not left yet), split by water-filling their U
+//!    surfaces: when a step's deposit on a steep flank exceeds `T'`, nearly every flank cell
+//!    would otherwise wait a round for the cell below it (BENCHMARKS.md, snow cover session 21).
 //! 3. **Check**: a cell whose excess found no lower neighbour (snow arriving in a pit, where a
 //!    pile must build up) keeps it for now; the stuck cells get further rounds while rounds
 //!    move snow (their neighbours may have passed their own excess on meanwhile), then the
@@ -283,6 +287,94 @@ fn layer_links(
         let c2 = (j as isize + dj) as usize * nx + (i as isize + di) as usize;
         Some((d, c2, usize::from(k2)))
     })
+}
+
+/// A receiver of snow in transit: (`c · layers + k`, cell, floor surface in metres, room in
+/// units).
+type Receiver = (usize, usize, f64, u32);
+
+/// Splits `e` units among `cands` by **water-filling** their floor surfaces (the lowest takes
+/// most; none past its room) to the level the excess needs, or to `sink` (the cell's base, when
+/// it has an edge: the level stops there and the sink takes the rest). Returns each candidate's
+/// units, their sum and what the sink takes; `e` minus both is what found no room.
+fn water_fill(cands: &[Receiver], e: u64, sink: Option<f64>) -> ([u32; 4], u64, u64) {
+    // Units that raising to level `lev` gives each candidate.
+    let give_at = |lev: f64, m: &Receiver| -> u32 {
+        if lev <= m.2 {
+            0
+        } else {
+            units_floor((lev - m.2) / SNOW_UNIT_M).min(m.3)
+        }
+    };
+    let total_at = |lev: f64| -> u64 { cands.iter().map(|m| u64::from(give_at(lev, m))).sum() };
+    // The level (above K too: the snow is in transit, not resting), or the cell's base when it
+    // has an edge (the sink takes the rest).
+    let hi = sink.unwrap_or_else(|| {
+        cands.iter().map(|m| m.2).fold(f64::NEG_INFINITY, f64::max) + e as f64 * SNOW_UNIT_M + 1.0
+    });
+    let lev = if sink.is_some() && total_at(hi) <= e {
+        hi
+    } else {
+        // Closed form (no room limit reached): the r lowest floors h₁ ≤ … ≤ h_r at a common
+        // level ℓ = (Σ h + e·unit) / r, the first r for which ℓ ≤ h_{r+1}.
+        let mut hs = [0f64; 4];
+        for (h, m) in hs.iter_mut().zip(cands.iter()) {
+            *h = m.2;
+        }
+        let hs = &mut hs[..cands.len()];
+        hs.sort_unstable_by(f64::total_cmp);
+        let mut lev = hi;
+        let mut sum = 0.0;
+        for r in 0..hs.len() {
+            sum += hs[r];
+            let l = (sum + e as f64 * SNOW_UNIT_M) / (r + 1) as f64;
+            if r + 1 == hs.len() || l <= hs[r + 1] {
+                lev = l;
+                break;
+            }
+        }
+        lev.min(hi)
+    };
+    let mut gives = [0u32; 4];
+    let mut given = 0u64;
+    for (g, m) in gives.iter_mut().zip(cands.iter()) {
+        *g = give_at(lev, m);
+        given += u64::from(*g);
+    }
+    // Float rounding may overshoot by a unit or so: take it back from the largest.
+    while given > e {
+        if let Some(g) = gives.iter_mut().max() {
+            *g -= 1;
+            given -= 1;
+        }
+    }
+    let mut left = e - given;
+    let mut lost = 0;
+    if sink.is_some() {
+        // The level reached the cell's base: the rest goes over the edge.
+        lost = left;
+        left = 0;
+    }
+    // The rounding remainder (a few units): one each to the candidates with room left, in the
+    // order of the links.
+    while left > 0 {
+        let open = gives
+            .iter()
+            .zip(cands.iter())
+            .filter(|(g, m)| **g < m.3)
+            .count();
+        if open == 0 {
+            break;
+        }
+        let each = left.div_ceil(open as u64);
+        for (g, m) in gives.iter_mut().zip(cands.iter()) {
+            let add = each.min(left).min(u64::from(m.3 - *g)) as u32;
+            *g += add;
+            left -= u64::from(add);
+            given += u64::from(add);
+        }
+    }
+    (gives, given, lost)
 }
 
 /// `⌊x⌋` as units in `[0, u32::MAX]`.
@@ -800,9 +892,9 @@ impl Router {
                 let bc = f64::from(maps.layers[k].base[c]);
                 let top = bc + f64::from(cap) * SNOW_UNIT_M;
                 // Candidates: the neighbours whose resting surface is below K (so they come
-                // later): (idx2, cell2, resting surface, ceiling, room in units, snow in transit
+                // later): (idx2, cell2, resting surface, room in units, snow in transit
                 // included); over the edge: a sink at the cell's base.
-                let mut cands: [(usize, usize, f64, f64, u32); 4] = [(0, 0, 0.0, 0.0, 0); 4];
+                let mut buf: [Receiver; 4] = [(0, 0, 0.0, 0); 4];
                 let mut n = 0;
                 let links = maps.layers[k].links[c];
                 let sink: Option<f64> = links.contains(&LINK_LOST).then_some(bc);
@@ -816,92 +908,50 @@ impl Router {
                     }
                     let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
                     if h < top {
-                        cands[n] = (idx2, c2, h, f64::from(l2.ceiling[c2]), room);
+                        buf[n] = (idx2, c2, h, room);
                         n += 1;
                     }
                 }
-                let cands = &mut cands[..n];
-                // Units that raising to level `lev` gives each candidate.
-                let give_at = |lev: f64, m: &(usize, usize, f64, f64, u32)| -> u32 {
-                    if lev <= m.2 {
-                        0
-                    } else {
-                        units_floor((lev - m.2) / SNOW_UNIT_M).min(m.4)
-                    }
-                };
-                let total_at =
-                    |lev: f64| -> u64 { cands.iter().map(|m| u64::from(give_at(lev, m))).sum() };
                 let e = u64::from(excess);
-                // The split: water-filling the candidates' resting surfaces to the level the excess
-                // needs (above K too: the snow is in transit, not resting), or to the cell's base
-                // when it has an edge (the sink takes the rest).
-                let hi = sink.unwrap_or_else(|| {
-                    cands.iter().map(|m| m.2).fold(f64::NEG_INFINITY, f64::max)
-                        + e as f64 * SNOW_UNIT_M
-                        + 1.0
-                });
-                let lev = if sink.is_some() && total_at(hi) <= e {
-                    hi
-                } else {
-                    // Closed form (no ceiling reached): the r lowest surfaces h₁ ≤ … ≤ h_r at
-                    // a common level ℓ = (Σ h + e·unit) / r, the first r for which ℓ ≤ h_{r+1}.
-                    let mut hs = [0f64; 4];
-                    for (h, m) in hs.iter_mut().zip(cands.iter()) {
-                        *h = m.2;
-                    }
-                    let hs = &mut hs[..cands.len()];
-                    hs.sort_unstable_by(f64::total_cmp);
-                    let mut lev = hi;
-                    let mut sum = 0.0;
-                    for r in 0..hs.len() {
-                        sum += hs[r];
-                        let l = (sum + e as f64 * SNOW_UNIT_M) / (r + 1) as f64;
-                        if r + 1 == hs.len() || l <= hs[r + 1] {
-                            lev = l;
-                            break;
+                let (mut gives, mut given, lost) = water_fill(&buf[..n], e, sink);
+                rep.lost_units += lost;
+                rep.moved_units += lost;
+                let mut left = e - given - lost;
+                // Downstream in transit: what found no room below K goes on to the neighbours
+                // still waiting in the heap (so they come later) whose bound U is below K: their
+                // resting surface is at K or above only because their own excess has not left
+                // yet (the erosion lowered them), and they pass on at their turn whatever they
+                // cannot keep. Split by water-filling their U surfaces. Without this the cell
+                // waited a round for each such neighbour, and when a step's deposit exceeds T'
+                // on a steep flank most flank cells did (BENCHMARKS.md, snow cover session 21).
+                let n1 = n;
+                if left > 0 && sink.is_none() {
+                    for (_, c2, k2) in layer_links(links, i, j, nx) {
+                        let idx2 = c2 * nl + k2;
+                        if !self.queued[idx2] || buf[..n1].iter().any(|m| m.0 == idx2) {
+                            continue;
+                        }
+                        let l2 = &maps.layers[k2];
+                        let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
+                        let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
+                        if s2 >= cap2 || room == 0 {
+                            continue;
+                        }
+                        let u2 = self.lb.get(maps, idx2, c2, k2);
+                        let f = f64::from(l2.base[c2]) + f64::from(u2) * SNOW_UNIT_M;
+                        if f < top {
+                            buf[n] = (idx2, c2, f, room);
+                            n += 1;
                         }
                     }
-                    lev.min(hi)
-                };
-                let mut gives = [0u32; 4];
-                let mut given = 0u64;
-                for (g, m) in gives.iter_mut().zip(cands.iter()) {
-                    *g = give_at(lev, m);
-                    given += u64::from(*g);
-                }
-                // Float rounding may overshoot by a unit or so: take it back from the largest.
-                while given > e {
-                    if let Some(g) = gives.iter_mut().max() {
-                        *g -= 1;
-                        given -= 1;
+                    if n > n1 {
+                        let (g2, given2, _) = water_fill(&buf[n1..n], left, None);
+                        gives[n1..n].copy_from_slice(&g2[..n - n1]);
+                        given += given2;
+                        left -= given2;
                     }
                 }
-                let mut left = e - given;
-                if sink.is_some() {
-                    // The level reached the cell's base: the rest goes over the edge.
-                    rep.lost_units += left;
-                    rep.moved_units += left;
-                    left = 0;
-                }
-                // The rounding remainder (a few units): one each to the candidates with room left,
-                // in the order of the links.
-                while left > 0 {
-                    let open = gives
-                        .iter()
-                        .zip(cands.iter())
-                        .filter(|(g, m)| **g < m.4)
-                        .count();
-                    if open == 0 {
-                        break;
-                    }
-                    let each = left.div_ceil(open as u64);
-                    for (g, m) in gives.iter_mut().zip(cands.iter()) {
-                        let add = each.min(left).min(u64::from(m.4 - *g)) as u32;
-                        *g += add;
-                        left -= u64::from(add);
-                        given += u64::from(add);
-                    }
-                }
+                let cands = &buf[..n];
                 // A pit (no neighbour below K could take it all): level the rest with the
                 // neighbours below the cell's full surface (the paper's levelling, to a common
                 // level), in transit too; the cell keeps its share for now and tries again in
