@@ -61,6 +61,9 @@ impl Snowfall {
 /// day's snow on open ground.
 pub const DEFAULT_RATE_M_PER_H: f64 = 0.02;
 
+/// Accumulation increments when none are given (see the `steps` parameter's doc for why 12).
+pub const DEFAULT_STEPS: usize = 12;
+
 /// Everything the model (SPEC §2 steps 1–5) needs. See [`ModelParams::default`] for defaults.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelParams {
@@ -80,7 +83,7 @@ pub struct ModelParams {
     pub snowfall: Snowfall,
     /// Hours of snowfall. Default 12.
     pub duration_h: f64,
-    /// Increments. Default 48.
+    /// Increments. Default [`DEFAULT_STEPS`].
     pub steps: usize,
     /// Recompute P on the snow surface every n steps; 0 = never (paper). Default 0.
     pub reproject_every: usize,
@@ -101,7 +104,7 @@ impl Default for ModelParams {
             seed: 0,
             snowfall: Snowfall::Constant(DEFAULT_RATE_M_PER_H),
             duration_h: 12.0,
-            steps: 48,
+            steps: DEFAULT_STEPS,
             reproject_every: 0,
             repose_angle_deg: 50.0,
             max_stabilize_iterations: 500,
