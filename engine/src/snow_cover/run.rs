@@ -27,7 +27,7 @@ use serde_json::json;
 
 use super::params::SnowCoverParams;
 use super::probability::{angle_weights, main_direction, point_probability, snowfall_directions};
-use super::shape::{displace, SnowMesh, DEFAULT_MIN_DEPTH_M};
+use super::shape::{displace, DisplacedMesh, SnowMesh, DEFAULT_MIN_DEPTH_M};
 use super::simplify::{simplified_snow_meshes, DEFAULT_MAX_ERROR_CELLS};
 use super::snowfall::{simulate, Snowfall, DEFAULT_RATE_M_PER_H};
 use super::sparse::{
@@ -140,6 +140,139 @@ fn snow_node(s: &SnowMesh) -> GlbNode<'_> {
     }
 }
 
+/// `snow.glb`, `scene.glb` and `displaced.glb` (module doc).
+fn encode_glbs(
+    mesh: &Mesh,
+    p: &SnowCoverParams,
+    snow: &[SnowMesh],
+    displaced: &DisplacedMesh,
+    coverage: &[f32],
+    point_p: &[f32],
+) -> [Vec<u8>; 3] {
+    // One node for all regions (issue 18: a node per region cost more JSON than geometry).
+    let snow_all = SnowMesh::merged(snow, "snow");
+    let snow_nodes: Vec<GlbNode> = (!snow_all.triangles.is_empty())
+        .then(|| snow_node(&snow_all))
+        .into_iter()
+        .collect();
+    let snow_glb = mesh_glb(&snow_nodes, None);
+    let parts = scene_nodes(mesh);
+    let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
+    scene.extend(snow_nodes.iter().cloned());
+    let scene_glb = mesh_glb(&scene, None);
+    // The displaced surface in the input's own materials (one primitive per part, sharing the
+    // vertices), the snow over it as a blended layer whose alpha is the snow amount
+    // f = min(depth / sparse_depth, 1), and the flakes above that.
+    let amounts: Vec<f32> = displaced
+        .depth
+        .iter()
+        .map(|&d| amount(d, p.sparse_depth))
+        .collect();
+    let groups: Vec<GlbGroup> = displaced
+        .parts
+        .iter()
+        .map(|part| GlbGroup {
+            triangles: part.first_triangle..part.first_triangle + part.triangle_count,
+            material: GlbMaterial {
+                name: part.name.clone(),
+                base_color: part.base_color,
+                alpha_blend: part.base_color[3] < 1.0,
+                double_sided: true,
+                texture: part
+                    .texture
+                    .filter(|_| displaced.uvs.is_some())
+                    .and_then(|k| mesh.textures.get(k).cloned()),
+                ..GlbMaterial::default()
+            },
+        })
+        .collect();
+    let layer = snow_layer(
+        &displaced.positions,
+        &displaced.normals,
+        &displaced.triangles,
+        &amounts,
+    );
+    let overlay = flake_overlay(
+        &displaced.positions,
+        &displaced.normals,
+        &displaced.triangles,
+        coverage,
+    );
+    let flakes = RgbaImage {
+        width: FLAKE_TEXTURE_SIZE as u32,
+        height: FLAKE_TEXTURE_SIZE as u32,
+        data: flake_texture(FLAKE_TEXTURE_SIZE, p.seed),
+    };
+    let overlays = [
+        GlbNode {
+            name: "snow_layer",
+            positions: &layer.positions,
+            normals: Some(&layer.normals),
+            uvs: None,
+            colors: Some(&layer.colors),
+            triangles: &layer.triangles,
+            material: GlbMaterial {
+                name: "snow_layer".into(),
+                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
+                roughness: 0.9,
+                alpha_blend: true,
+                double_sided: true,
+                ..GlbMaterial::default()
+            },
+            custom: &[],
+            groups: &[],
+            overlays: &[],
+        },
+        GlbNode {
+            name: "flakes",
+            positions: &overlay.positions,
+            normals: Some(&overlay.normals),
+            uvs: Some(&overlay.uvs),
+            colors: Some(&overlay.colors),
+            triangles: &overlay.triangles,
+            material: GlbMaterial {
+                name: "snow_flakes".into(),
+                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
+                roughness: 0.9,
+                alpha_blend: true,
+                double_sided: true,
+                texture_png: Some(encode_rgba(&flakes)),
+                ..GlbMaterial::default()
+            },
+            custom: &[],
+            groups: &[],
+            overlays: &[],
+        },
+    ];
+    let custom: [(&str, &[f32]); 4] = [
+        ("_SNOW_COVERAGE", coverage),
+        ("_SNOW_DEPTH", &displaced.depth),
+        ("_SNOW_PROBABILITY", &displaced.probability),
+        ("_SNOW_POINT_PROBABILITY", point_p),
+    ];
+    let displaced_glb = mesh_glb(
+        &[GlbNode {
+            name: "displaced",
+            positions: &displaced.positions,
+            normals: Some(&displaced.normals),
+            uvs: displaced.uvs.as_deref(),
+            colors: displaced.colors.as_deref(),
+            triangles: &displaced.triangles,
+            material: GlbMaterial {
+                name: "displaced".into(),
+                base_color: [GROUND, GROUND, GROUND, 1.0],
+                double_sided: true,
+                ..GlbMaterial::default()
+            },
+            custom: &custom,
+            groups: &groups,
+            overlays: &overlays,
+        }],
+        None,
+    );
+    [snow_glb, scene_glb, displaced_glb]
+}
+
 /// Runs the pipeline on a decoded scene.
 pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Output>, Canceled> {
     let t_all = Instant::now();
@@ -189,193 +322,97 @@ pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Ou
 
     ctl.progress("shape", 0.8);
     let t0 = Instant::now();
-    let (snow, simplified) = simplified_snow_meshes(
-        &maps,
-        DEFAULT_MIN_DEPTH_M,
-        DEFAULT_MAX_ERROR_CELLS,
-        p.snow_max_triangles,
+    // The snow meshes and the displaced surface with its flakes depend only on the maps: the
+    // two run side by side (the simplification of a scene with one large region is mostly one
+    // core's work; measured in BENCHMARKS.md, snow cover session 22).
+    let ((snow, simplified), shaped) = rayon::join(
+        || {
+            simplified_snow_meshes(
+                &maps,
+                DEFAULT_MIN_DEPTH_M,
+                DEFAULT_MAX_ERROR_CELLS,
+                p.snow_max_triangles,
+            )
+        },
+        || -> Result<_, Canceled> {
+            let displaced = displace(mesh, &maps, p.max_edge_length);
+            // The flakes' snow probability at the displaced vertices themselves (walls included), from
+            // the first FLAKE_DIRECTIONS of the model's snowfall directions (independent draws, so an
+            // unbiased subset).
+            let dirs =
+                snowfall_directions(model.directions, model.spread_deg, model.wind, model.seed);
+            let dirs = &dirs[..dirs.len().min(FLAKE_DIRECTIONS)];
+            let weights = model
+                .angle_weighting
+                .then(|| angle_weights(dirs, model.spread_deg, model.wind));
+            let point_p = point_probability(
+                mesh,
+                &displaced.positions,
+                &displaced.normals,
+                dirs,
+                weights.as_deref(),
+                maps.cell,
+                ctl,
+            )?;
+            // No snowfall, no flakes (the angle term alone would put them on every wall).
+            let coverage = if model.snowfall.cumulative(model.duration_h) > 0.0 {
+                vertex_coverage_with_probability(
+                    &displaced.positions,
+                    &displaced.triangles,
+                    &displaced.depth,
+                    Some(&point_p),
+                    main_direction(model.wind),
+                    p.sparse_depth,
+                )
+            } else {
+                vec![0.0; displaced.positions.len()]
+            };
+            let flakes = flake_particles(
+                &displaced.positions,
+                &displaced.normals,
+                &displaced.triangles,
+                &coverage,
+                p.seed,
+                MAX_RENDER_FLAKES,
+            );
+            Ok((displaced, point_p, coverage, flakes))
+        },
     );
-    let displaced = displace(mesh, &maps, p.max_edge_length);
-    // The flakes' snow probability at the displaced vertices themselves (walls included), from
-    // the first FLAKE_DIRECTIONS of the model's snowfall directions (independent draws, so an
-    // unbiased subset).
-    let dirs = snowfall_directions(model.directions, model.spread_deg, model.wind, model.seed);
-    let dirs = &dirs[..dirs.len().min(FLAKE_DIRECTIONS)];
-    let weights = model
-        .angle_weighting
-        .then(|| angle_weights(dirs, model.spread_deg, model.wind));
-    let point_p = point_probability(
-        mesh,
-        &displaced.positions,
-        &displaced.normals,
-        dirs,
-        weights.as_deref(),
-        maps.cell,
-        ctl,
-    )?;
-    // No snowfall, no flakes (the angle term alone would put them on every wall).
-    let coverage = if model.snowfall.cumulative(model.duration_h) > 0.0 {
-        vertex_coverage_with_probability(
-            &displaced.positions,
-            &displaced.triangles,
-            &displaced.depth,
-            Some(&point_p),
-            main_direction(model.wind),
-            p.sparse_depth,
-        )
-    } else {
-        vec![0.0; displaced.positions.len()]
-    };
-    let flakes = flake_particles(
-        &displaced.positions,
-        &displaced.normals,
-        &displaced.triangles,
-        &coverage,
-        p.seed,
-        MAX_RENDER_FLAKES,
-    );
+    let (displaced, point_p, coverage, flakes) = shaped?;
     timings.push(("shape".into(), t0.elapsed().as_secs_f64() * 1e3));
     ctl.checkpoint()?;
 
-    let t0 = Instant::now();
-    let image = render_scene(
-        mesh,
-        &snow,
-        Some(&flakes),
-        p,
-        p.view.width,
-        p.view.height,
-        ctl,
-        (0.82, 0.95),
-    )?;
-    timings.push(("render".into(), t0.elapsed().as_secs_f64() * 1e3));
-
+    // The render and the three glTF files need only the shapes: they are built side by side
+    // (their stage times overlap; `render` is the image's, `encode` the files' and the PNGs').
+    let ((image, render_ms), (glbs, glb_ms)) = rayon::join(
+        || {
+            let t0 = Instant::now();
+            let image = render_scene(
+                mesh,
+                &snow,
+                Some(&flakes),
+                p,
+                p.view.width,
+                p.view.height,
+                ctl,
+                (0.82, 0.95),
+            );
+            (image, t0.elapsed().as_secs_f64() * 1e3)
+        },
+        || {
+            let t0 = Instant::now();
+            let glbs = encode_glbs(mesh, p, &snow, &displaced, &coverage, &point_p);
+            (glbs, t0.elapsed().as_secs_f64() * 1e3)
+        },
+    );
+    let image = image?;
+    timings.push(("render".into(), render_ms));
     ctl.progress("encode", 0.95);
     let t0 = Instant::now();
-    // One node for all regions (issue 18: a node per region cost more JSON than geometry).
-    let snow_all = SnowMesh::merged(&snow, "snow");
-    let snow_nodes: Vec<GlbNode> = (!snow_all.triangles.is_empty())
-        .then(|| snow_node(&snow_all))
-        .into_iter()
-        .collect();
-    let snow_glb = mesh_glb(&snow_nodes, None);
-    let parts = scene_nodes(mesh);
-    let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
-    scene.extend(snow_nodes.iter().cloned());
-    let scene_glb = mesh_glb(&scene, None);
-    // The displaced surface in the input's own materials (one primitive per part, sharing the
-    // vertices), the snow over it as a blended layer whose alpha is the snow amount
-    // f = min(depth / sparse_depth, 1), and the flakes above that.
-    let amounts: Vec<f32> = displaced
-        .depth
-        .iter()
-        .map(|&d| amount(d, p.sparse_depth))
-        .collect();
-    let groups: Vec<GlbGroup> = displaced
-        .parts
-        .iter()
-        .map(|part| GlbGroup {
-            triangles: part.first_triangle..part.first_triangle + part.triangle_count,
-            material: GlbMaterial {
-                name: part.name.clone(),
-                base_color: part.base_color,
-                alpha_blend: part.base_color[3] < 1.0,
-                double_sided: true,
-                texture: part
-                    .texture
-                    .filter(|_| displaced.uvs.is_some())
-                    .and_then(|k| mesh.textures.get(k).cloned()),
-                ..GlbMaterial::default()
-            },
-        })
-        .collect();
-    let layer = snow_layer(
-        &displaced.positions,
-        &displaced.normals,
-        &displaced.triangles,
-        &amounts,
-    );
-    let overlay = flake_overlay(
-        &displaced.positions,
-        &displaced.normals,
-        &displaced.triangles,
-        &coverage,
-    );
-    let flakes = RgbaImage {
-        width: FLAKE_TEXTURE_SIZE as u32,
-        height: FLAKE_TEXTURE_SIZE as u32,
-        data: flake_texture(FLAKE_TEXTURE_SIZE, p.seed),
-    };
-    let overlays = [
-        GlbNode {
-            name: "snow_layer",
-            positions: &layer.positions,
-            normals: Some(&layer.normals),
-            uvs: None,
-            colors: Some(&layer.colors),
-            triangles: &layer.triangles,
-            material: GlbMaterial {
-                name: "snow_layer".into(),
-                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
-                roughness: 0.9,
-                alpha_blend: true,
-                double_sided: true,
-                ..GlbMaterial::default()
-            },
-            custom: &[],
-            groups: &[],
-            overlays: &[],
-        },
-        GlbNode {
-            name: "flakes",
-            positions: &overlay.positions,
-            normals: Some(&overlay.normals),
-            uvs: Some(&overlay.uvs),
-            colors: Some(&overlay.colors),
-            triangles: &overlay.triangles,
-            material: GlbMaterial {
-                name: "snow_flakes".into(),
-                base_color: [SNOW[0], SNOW[1], SNOW[2], 1.0],
-                roughness: 0.9,
-                alpha_blend: true,
-                double_sided: true,
-                texture_png: Some(encode_rgba(&flakes)),
-                ..GlbMaterial::default()
-            },
-            custom: &[],
-            groups: &[],
-            overlays: &[],
-        },
-    ];
-    let custom: [(&str, &[f32]); 4] = [
-        ("_SNOW_COVERAGE", &coverage),
-        ("_SNOW_DEPTH", &displaced.depth),
-        ("_SNOW_PROBABILITY", &displaced.probability),
-        ("_SNOW_POINT_PROBABILITY", &point_p),
-    ];
-    let displaced_glb = mesh_glb(
-        &[GlbNode {
-            name: "displaced",
-            positions: &displaced.positions,
-            normals: Some(&displaced.normals),
-            uvs: displaced.uvs.as_deref(),
-            colors: displaced.colors.as_deref(),
-            triangles: &displaced.triangles,
-            material: GlbMaterial {
-                name: "displaced".into(),
-                base_color: [GROUND, GROUND, GROUND, 1.0],
-                double_sided: true,
-                ..GlbMaterial::default()
-            },
-            custom: &custom,
-            groups: &groups,
-            overlays: &overlays,
-        }],
-        None,
-    );
+    let [snow_glb, scene_glb, displaced_glb] = glbs;
     let png = encode_rgba(&image);
     let timelapse = (frames.len() > 1).then(|| encode_apng(&frames, 250));
-    timings.push(("encode".into(), t0.elapsed().as_secs_f64() * 1e3));
+    timings.push(("encode".into(), glb_ms + t0.elapsed().as_secs_f64() * 1e3));
 
     let scaled_to_scene =
         p.snowfall.is_none() && model.snowfall != Snowfall::Constant(DEFAULT_RATE_M_PER_H);
