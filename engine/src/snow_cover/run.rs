@@ -451,6 +451,7 @@ pub fn run(mesh: &Mesh, p: &SnowCoverParams, ctl: &dyn Control) -> Result<Vec<Ou
         "stabilization": {
             "iterations": report.stabilize_iterations,
             "unconverged_steps": report.unconverged_steps,
+            "routing_over_budget_steps": report.routing_over_budget_steps,
             "steps": report.step_iterations.len(),
             "max_step_iterations": report.step_iterations.iter().copied().max().unwrap_or(0),
             "iterations_per_step": report.step_iterations,

@@ -132,6 +132,9 @@ pub struct ModelReport {
     pub stabilize_iterations: usize,
     /// Steps whose stabilization stopped at `max_stabilize_iterations`.
     pub unconverged_steps: usize,
+    /// Steps whose routing ran past its safety net ([`super::route`], step 3) and left the
+    /// rest to the sweep (none on any mesh measured since the pit levelling was fixed).
+    pub routing_over_budget_steps: usize,
     /// Stabilization iterations of each step (fine level; in step order).
     pub step_iterations: Vec<u32>,
     /// The final state's repose residual ([`super::settle::repose_residual`]): the steepest
@@ -341,6 +344,7 @@ pub fn simulate(
         let (t_drop, tol) = settler.drops(&maps, p.repose_angle_deg);
         let routed = router.route(&mut maps, t_drop, tol, &Clock { cum: &cum, step: n });
         lost += routed.lost_units;
+        report.routing_over_budget_steps += usize::from(routed.over_budget);
         let (iterations, converged) = if routed.unsettled.is_empty() {
             (1, true)
         } else if p.max_stabilize_iterations <= 1 {
