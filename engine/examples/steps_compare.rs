@@ -10,7 +10,7 @@
 
 use std::time::Instant;
 
-use phenomena_engine::formats::mesh::{decode_mesh, MeshOptions};
+use phenomena_engine::formats::mesh::decode_upright;
 use phenomena_engine::params::Limits;
 use phenomena_engine::snow_cover::{simulate, SnowCoverParams, SNOW_UNIT_M};
 use phenomena_engine::NoControl;
@@ -23,7 +23,9 @@ fn main() {
         list = vec![48, 24, 16, 12, 8, 6];
     }
     let bytes = std::fs::read(path).unwrap();
-    let mesh = decode_mesh(&bytes, Some(path), &MeshOptions::default()).expect("decodes");
+    // Upright as the pipeline decodes it (session 21's driver decoded with the reader's default
+    // axis: `wuson.ply` lay on its side there).
+    let mesh = decode_upright(&bytes, Some(path), &[], None, &Limits::default()).expect("decodes");
     let height = mesh
         .bounds()
         .map_or(0.0, |(lo, hi)| f64::from(hi[1] - lo[1]));
