@@ -155,11 +155,32 @@ fn encode_glbs(
         .then(|| snow_node(&snow_all))
         .into_iter()
         .collect();
-    let snow_glb = mesh_glb(&snow_nodes, None);
-    let parts = scene_nodes(mesh);
-    let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
-    scene.extend(snow_nodes.iter().cloned());
-    let scene_glb = mesh_glb(&scene, None);
+    // The three files side by side (the displaced surface is the largest).
+    let ((snow_glb, scene_glb), displaced_glb) = rayon::join(
+        || {
+            rayon::join(
+                || mesh_glb(&snow_nodes, None),
+                || {
+                    let parts = scene_nodes(mesh);
+                    let mut scene: Vec<GlbNode> = parts.iter().map(|n| n.node()).collect();
+                    scene.extend(snow_nodes.iter().cloned());
+                    mesh_glb(&scene, None)
+                },
+            )
+        },
+        || displaced_glb(mesh, p, displaced, coverage, point_p),
+    );
+    [snow_glb, scene_glb, displaced_glb]
+}
+
+/// `displaced.glb` (module doc).
+fn displaced_glb(
+    mesh: &Mesh,
+    p: &SnowCoverParams,
+    displaced: &DisplacedMesh,
+    coverage: &[f32],
+    point_p: &[f32],
+) -> Vec<u8> {
     // The displaced surface in the input's own materials (one primitive per part, sharing the
     // vertices), the snow over it as a blended layer whose alpha is the snow amount
     // f = min(depth / sparse_depth, 1), and the flakes above that.
@@ -250,7 +271,7 @@ fn encode_glbs(
         ("_SNOW_PROBABILITY", &displaced.probability),
         ("_SNOW_POINT_PROBABILITY", point_p),
     ];
-    let displaced_glb = mesh_glb(
+    mesh_glb(
         &[GlbNode {
             name: "displaced",
             positions: &displaced.positions,
@@ -269,8 +290,7 @@ fn encode_glbs(
             overlays: &overlays,
         }],
         None,
-    );
-    [snow_glb, scene_glb, displaced_glb]
+    )
 }
 
 /// Runs the pipeline on a decoded scene.
