@@ -943,19 +943,6 @@ impl Router {
             while let Some(key) = self.max_heap.pop() {
                 let idx = key_index(key);
                 self.queued[idx] = false;
-                visits += 1;
-                if visits > budget {
-                    // The snow still in transit rests where it is; the check below finds
-                    // what is too steep and the sweep settles it.
-                    let (c, k) = (idx / nl, idx % nl);
-                    self.lb.materialize(maps, idx, c, k);
-                    let s = &mut maps.layers[k].snow[c];
-                    *s = s.saturating_add(self.pending[idx]);
-                    self.pending[idx] = 0;
-                    Self::mark(&mut self.check, &mut self.check_list, c);
-                    rep.over_budget = true;
-                    continue;
-                }
                 let (c, k) = (idx / nl, idx % nl);
                 let (i, j) = (c % nx, c / nx);
                 // The snow in transit arrives (it rests here from now on, or moves on); U here
@@ -964,6 +951,14 @@ impl Router {
                 let s = maps.layers[k].snow[c].saturating_add(self.pending[idx]);
                 maps.layers[k].snow[c] = s;
                 self.pending[idx] = 0;
+                visits += 1;
+                if visits > budget {
+                    // Past the safety net the snow rests where it arrived; the check below
+                    // finds what is too steep and the sweep settles it.
+                    Self::mark(&mut self.check, &mut self.check_list, c);
+                    rep.over_budget = true;
+                    continue;
+                }
                 let cap = Self::keep_cap(maps, &self.lb, &self.cap, nl, k, i, j, t_prime);
                 if s <= cap {
                     // It keeps all it has, for good (a lower bound of its final snow).
@@ -984,9 +979,9 @@ impl Router {
                 for (_, c2, k2) in layer_links(links, i, j, nx) {
                     let l2 = &maps.layers[k2];
                     let idx2 = c2 * nl + k2;
-                    let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
-                    let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
-                    if s2 >= cap2 || room == 0 {
+                    let s2 = l2.snow[c2];
+                    let room = self.room(s2, idx2);
+                    if room == 0 {
                         continue;
                     }
                     let h = f64::from(l2.base[c2]) + f64::from(s2) * SNOW_UNIT_M;
@@ -1015,9 +1010,8 @@ impl Router {
                             continue;
                         }
                         let l2 = &maps.layers[k2];
-                        let (s2, cap2) = (l2.snow[c2], self.cap[idx2]);
-                        let room = cap2.saturating_sub(s2.saturating_add(self.pending[idx2]));
-                        if s2 >= cap2 || room == 0 {
+                        let room = self.room(l2.snow[c2], idx2);
+                        if room == 0 {
                             continue;
                         }
                         let u2 = self.lb.get(maps, idx2, c2, k2);
@@ -1186,6 +1180,13 @@ impl Router {
         all.clear();
         self.check_list = all;
         rep
+    }
+
+    /// Units a cell-layer holding `snow` can still take in transit: its capacity less what it
+    /// holds and what is already on its way to it.
+    #[inline]
+    fn room(&self, snow: u32, idx: usize) -> u32 {
+        self.cap[idx].saturating_sub(snow.saturating_add(self.pending[idx]))
     }
 
     #[inline]
